@@ -1,0 +1,166 @@
+"""Read mission TOML files, apply ``--set`` overrides, validate.
+
+Errors name the file and the dotted key path. Thesis names (``chrp.F2``) are accepted both in files
+(as ``[chrp] F2 = ...``) and in ``--set``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import sys
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from pydantic import BaseModel, ValidationError
+
+from .aliases import THESIS_TO_KEY, resolve_key
+from .models import MissionConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+class ConfigError(ValueError):
+    """A configuration problem; the message names the file and key."""
+
+
+def _model_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
+    keys = []
+    for name, field in model.model_fields.items():
+        ann = field.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            keys.extend(_model_keys(ann, f"{prefix}{name}."))
+        else:
+            keys.append(f"{prefix}{name}")
+    return keys
+
+
+PROJECT_KEYS: tuple[str, ...] = tuple(_model_keys(MissionConfig))
+ALL_KEYS: tuple[str, ...] = PROJECT_KEYS + tuple(THESIS_TO_KEY)
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for k, v in tree.items():
+        path = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            flat.update(_flatten(v, path + "."))
+        else:
+            flat[path] = v
+    return flat
+
+
+def _unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    tree: dict[str, Any] = {}
+    for path, v in flat.items():
+        node = tree
+        *parents, leaf = path.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = v
+    return tree
+
+
+def _unknown_key_message(key: str, source: str) -> str:
+    close = difflib.get_close_matches(key, ALL_KEYS, n=5, cutoff=0.6)
+    if not close:
+        # Match on the last component too: 'chrp.F3' -> chrp.F2, 'F2' -> chrp.F2.
+        leaf = key.rsplit(".", 1)[-1].lower()
+        close = [k for k in ALL_KEYS if k.rsplit(".", 1)[-1].lower() == leaf][:5]
+    hint = f"; did you mean: {', '.join(close)}" if close else ""
+    return f"{source}: unknown key '{key}'{hint}"
+
+
+def _canonical(flat: Mapping[str, Any], source: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in flat.items():
+        proj = resolve_key(key)
+        if proj not in PROJECT_KEYS:
+            raise ConfigError(_unknown_key_message(key, source))
+        if proj in out:
+            raise ConfigError(f"{source}: key '{proj}' given twice (once as '{key}')")
+        out[proj] = value
+    return out
+
+
+def parse_set(assignment: str) -> tuple[str, Any]:
+    """Parse ``KEY=VALUE``: VALUE is read as a TOML literal, else kept as a bare string."""
+    if "=" not in assignment:
+        raise ConfigError(f"--set '{assignment}': expected KEY=VALUE")
+    key, raw = (s.strip() for s in assignment.split("=", 1))
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def _format_validation(err: ValidationError, source: str) -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"] if p != "__root__")
+        thesis = [t for t, k in THESIS_TO_KEY.items() if k == loc]
+        also = f" ({thesis[0]})" if thesis else ""
+        if e["type"] == "missing":
+            lines.append(f"{source}: missing key '{loc}'{also}")
+        elif e["type"] == "extra_forbidden":
+            lines.append(_unknown_key_message(loc, source))
+        else:
+            where = f"'{loc}'{also}" if loc else "configuration"
+            lines.append(f"{source}: {where}: {e['msg']} (got {e.get('input')!r})"
+                         if loc else f"{source}: {e['msg']}")
+    return "\n".join(lines)
+
+
+def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
+    try:
+        return MissionConfig.model_validate(_unflatten(flat))
+    except ValidationError as err:
+        raise ConfigError(_format_validation(err, source)) from None
+
+
+def read_mission_flat(path: str | Path) -> dict[str, Any]:
+    """The mission file as canonical dotted keys (thesis names translated)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read mission file ({exc.strerror})") from None
+    try:
+        tree = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return _canonical(_flatten(tree), str(path))
+
+
+def load_mission(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] = ()) -> MissionConfig:
+    """Load and validate a mission file, applying ``--set`` style overrides.
+
+    ``overrides`` is either ``["chrp.F2=300e6", ...]`` or a mapping of (thesis or project) key to value.
+    """
+    flat = read_mission_flat(path)
+    return apply_overrides(flat, overrides, str(path))
+
+
+def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[str, Any],
+                    source: str) -> MissionConfig:
+    items = overrides.items() if isinstance(overrides, Mapping) else (parse_set(s) for s in overrides)
+    merged = dict(flat)
+    for key, value in items:
+        proj = resolve_key(key)
+        if proj not in PROJECT_KEYS:
+            raise ConfigError(_unknown_key_message(key, "--set"))
+        merged[proj] = value
+    return build_config(merged, source)
+
+
+def config_with(config: MissionConfig, overrides: Mapping[str, Any]) -> MissionConfig:
+    """A new validated config with dotted-key overrides (thesis names accepted)."""
+    flat = _flatten(config.model_dump())
+    return apply_overrides(flat, overrides, "override")
+
+
+def config_flat(config: MissionConfig) -> dict[str, Any]:
+    return _flatten(config.model_dump())

@@ -1,0 +1,37 @@
+"""Physical constants (CODATA 2018 exact SI values) and dB conversions.
+
+dB of zero is exactly -inf, computed without a warning and never NaN (DESIGN.md numerical rules).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+PLANCK_J_S = 6.626_070_15e-34
+ELEMENTARY_CHARGE_C = 1.602_176_634e-19
+BOLTZMANN_J_K = 1.380_649e-23
+
+
+def db_to_ratio(db):
+    return 10.0 ** (np.asarray(db, dtype=float) / 10.0)
+
+
+def ratio_db(ratio):
+    """10 log10 of a power ratio; -inf for zero, NaN never produced for ratio >= 0."""
+    r = np.asarray(ratio, dtype=float)
+    out = np.full(r.shape, -np.inf)
+    pos = r > 0
+    out[pos] = 10.0 * np.log10(r[pos])
+    return out if out.ndim else float(out)
+
+
+def power_dbm(power_w):
+    """dBm of a power in watts; -inf for zero power."""
+    out = ratio_db(power_w)
+    return out + 30.0
+
+
+def responsivity_a_per_w(quantum_efficiency: float, wavelength_m: float) -> float:
+    """R = eta q / (h nu), thesis eq. 2.4.17."""
+    return quantum_efficiency * ELEMENTARY_CHARGE_C * wavelength_m / (PLANCK_J_S * SPEED_OF_LIGHT_M_S)
