@@ -121,8 +121,12 @@ def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
         raise ConfigError(_format_validation(err, source)) from None
 
 
-def read_mission_flat(path: str | Path) -> dict[str, Any]:
-    """The mission file as canonical dotted keys (thesis names translated)."""
+def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The mission file as canonical dotted keys (thesis names translated).
+
+    A top-level ``extends = "other.toml"`` (relative to this file) loads that file first and lets
+    this one override it key by key, so a variant states only what differs and why.
+    """
     path = Path(path)
     try:
         text = path.read_text()
@@ -132,7 +136,15 @@ def read_mission_flat(path: str | Path) -> dict[str, Any]:
         tree = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    return _canonical(_flatten(tree), str(path))
+    parent = tree.pop("extends", None)
+    flat = _canonical(_flatten(tree), str(path))
+    if parent is None:
+        return flat
+    base_path = (path.parent / parent).resolve()
+    if base_path in _seen:
+        raise ConfigError(f"{path}: 'extends' loops back to {base_path}")
+    base = read_mission_flat(base_path, _seen + (base_path,))
+    return {**base, **flat}
 
 
 def load_mission(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] = ()) -> MissionConfig:

@@ -90,14 +90,16 @@ class Processing(_Model):
         "SNR grows with the number of chirps while the phase is stable); 'power' averages spectra")
     highpass_hz: float = Field(ge=0, description="peak search minimum frequency (sys.f_highpass)")
     rbw_hz: float = Field(gt=0, description="spectrum-analyzer resolution bandwidth (sys.BWres)")
-    peak_method: Literal["bin", "parabolic", "zoom"] = Field(
-        "zoom", description="'bin' = FFT argmax (thesis); 'parabolic' = Gaussian 3-point; "
-        "'zoom' = chirp-z zoom around the peak then parabolic (removes scalloping)")
+    peak_method: Literal["bin", "parabolic", "dtft"] = Field(
+        "dtft", description="'bin' = FFT argmax (thesis FFT_peak.m); 'parabolic' = 3-point "
+        "Gaussian interpolation; 'dtft' = the exact DTFT near the peak, interpolated from the FFT "
+        "bins with the Dirichlet kernel, maximised on a fine grid (no scalloping)")
     noise_span_hz: float = Field(
-        2e6, gt=0, description="span around the peak over which the noise level is averaged "
-        "(thesis Fig. 5.12: 2 MHz spectrum-analyzer span)")
-    noise_guard_bins: int = Field(
-        12, ge=1, description="bins each side of the peak excluded from the noise average")
+        4e6, gt=0, description="span around the peak over which the noise level is averaged")
+    noise_guard_hz: float = Field(
+        1e6, gt=0, description="half-width around the peak excluded from the noise average: keeps "
+        "the tone's own sidelobes out of the noise reading (the thesis reads the noise over a "
+        "'flat' region, Sec. 2.6)")
 
 
 class Waveform(_Model):
@@ -220,7 +222,10 @@ class Balanced(_Photodiode):
     quantum_efficiency_2: float = Field(gt=0, le=1, description="COH.qe2")
     transimpedance_ohm: float = Field(gt=0, description="COH.Ztia")
     bandwidth_hz: float = Field(gt=0, description="detector bandwidth (Table 5.1: 800 MHz)")
-    saturation_power_w: float = Field(gt=0, description="per-photodiode saturation (Table 5.1)")
+    saturation_power_w: float = Field(gt=0, description="saturation of the detector's RF "
+                                      "amplifier, as optical power of the differential signal")
+    coupler_excess_loss_db: float = Field(ge=0, description="3 dB coupler / hybrid loss beyond "
+                                          "the ideal split (Table 5.1: max IL 3.6 dB -> 0.6 dB)")
 
 
 class PIN(_Photodiode):
@@ -301,10 +306,10 @@ class MissionConfig(_Model):
                 f"than simulation.duration_s (sims.T = {self.simulation.duration_s:g} s): no whole "
                 "chirp fits in the record")
         if (self.system.receiver == "coherent" and self.system.coherent_mode == "heterodyne"):
-            top = self.balanced.lo_offset_hz + 2 * f_top
+            top = self.balanced.lo_offset_hz + 1.25 * f_top
             if top >= nyq:
                 raise ValueError(
-                    f"heterodyne IF: balanced.lo_offset_hz + 2*(F2+F0) = {top:g} Hz is at or above "
+                    f"heterodyne IF band: balanced.lo_offset_hz + 1.25*(F2+F0) = {top:g} Hz is at or above "
                     f"Nyquist ({nyq:g} Hz); lower COH.f_LO or raise sims.Fs")
         if self.system.modulation == "pn_code":
             if self.waveform.pn_chip_rate_hz is None or self.waveform.pn_order is None:

@@ -1,0 +1,8 @@
+"""chirplidar: simulator for FM-chirped lidar altimeters with self-chirped homodyne detection."""
+
+from .api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_shot, sweep
+from .config import ConfigError, MissionConfig, load_mission
+
+__version__ = "0.1.0"
+__all__ = ["simulate_shot", "sweep", "load_mission", "ConfigError", "MissionConfig",
+           "OUTPUT_NAMES", "OUTPUT_UNITS", "__version__"]

@@ -1,0 +1,71 @@
+"""Timing of the simulator against a reference cost (DESIGN rule 1: show what accuracy costs in time).
+
+``bench_shot`` times one rf-tier shot of the thesis bench mission against ONE real FFT of the same
+record length (N = sims.T * sims.Fs samples), the floor any time-domain simulation pays. Times are
+wall-clock seconds (``time.perf_counter``), the median of ``repeats`` runs after one warm-up run.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import scipy.fft
+
+MISSION_NAME = "thesis_bench.toml"
+
+
+def default_mission_path(name: str = MISSION_NAME) -> Path:
+    """``missions/<name>`` from the working directory, else from the source checkout."""
+    candidates = [Path.cwd() / "missions" / name,
+                  Path(__file__).resolve().parents[2] / "missions" / name]
+    for path in candidates:
+        if path.is_file():
+            return path
+    return candidates[0]  # load_mission reports it as missing, naming the path
+
+
+def time_call(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> float:
+    """Median wall-clock time of ``fn()`` in seconds over ``repeats`` calls, after ``warmup`` calls."""
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def record_samples(cfg) -> int:
+    """Samples in one simulated record: N = round(sims.T * sims.Fs)."""
+    return int(round(cfg.simulation.duration_s * cfg.simulation.sample_rate_hz))
+
+
+def time_fft(n_samples: int, repeats: int = 5, seed: int = 0) -> float:
+    """Median time (s) of one ``scipy.fft.rfft`` of a real float64 record of ``n_samples``."""
+    record = np.random.default_rng(seed).standard_normal(n_samples)
+    return time_call(lambda: scipy.fft.rfft(record), repeats=repeats)
+
+
+def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = None,
+               repeats: int = 5, seed: int = 0, tier: str = "rf") -> dict[str, float | int]:
+    """Time one shot of ``mission`` (default: missions/thesis_bench.toml, homodyne) against one FFT.
+
+    Returns ``rf_shot_s`` (s per shot), ``fft_s`` (s per FFT of the same length), ``ratio``
+    (shot / FFT) and ``n_samples``. Both are timed in this call, so the ratio compares like with
+    like on the machine at hand; absolute times are not asserted anywhere.
+    """
+    from .api import simulate_shot
+    from .config import load_mission
+
+    cfg = load_mission(mission if mission is not None else default_mission_path(), overrides or [])
+    n = record_samples(cfg)
+    shot_s = time_call(lambda: simulate_shot(cfg, seed=seed, tier=tier), repeats=repeats)
+    fft_s = time_fft(n, repeats=max(repeats, 20), seed=seed)
+    return {"rf_shot_s": shot_s, "fft_s": fft_s, "ratio": shot_s / fft_s, "n_samples": n}

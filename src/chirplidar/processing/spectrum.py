@@ -1,0 +1,171 @@
+"""Calibrated spectra and peak analysis (thesis FFT_peak.m, eqs. 2.6.3-2.6.12).
+
+Conventions (one-sided, what a spectrum analyzer displays):
+
+* PSD  P_k = 2 |X_k|^2 / (N Fs R)  [W/Hz]; white noise of variance s^2 reads 2 s^2 / (Fs R).
+* A tone A cos(2 pi f t) reads A^2 / (2 R) as ``P_peak * df`` with df = Fs / N (eq. 2.6.6).
+* Noise level = mean PSD over a flat span beside the peak, times the RBW (eq. 2.6.11).
+* SNR = tone power / (noise PSD * RBW) (eq. 2.6.12).
+
+The thesis's own normalisation (P_f = V_f^2 / (R 2 BW), eqs. 2.6.3-2.6.4) is two-sided: both its
+signal and its noise read 3 dB below these, so the SNR is the same; we report the one-sided values
+because they equal a spectrum analyzer's readings (Crx, Navg).
+
+The zero-padding factor (``sys.smoothx``) samples the same DTFT more finely; the ``dtft`` peak method
+evaluates the DTFT itself near the peak, exactly, by Dirichlet-kernel interpolation of the FFT bins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+# Neighbouring bins used by the Dirichlet interpolation; truncation error ~ 1/(pi^2 L) of the
+# noise level, far below the scatter of a single periodogram bin.
+_KERNEL_HALF_WIDTH = 48
+_FINE_STEP = 1.0 / 32.0      # fine-grid step for the peak, in native bins
+_THREEDB_SPAN = 8.0          # +- native bins searched for the 3 dB points on the fine grid
+
+
+@dataclass(frozen=True)
+class PeakResult:
+    """Per-record results of spectral analysis (all arrays have the batch shape)."""
+
+    f_peak_hz: np.ndarray
+    peak_power_w: np.ndarray       # tone power as a spectrum analyzer reads it (Crx)
+    noise_psd_w_per_hz: np.ndarray # one-sided noise PSD beside the peak
+    f_lo_hz: np.ndarray
+    f_hi_hz: np.ndarray
+    snr: np.ndarray                # linear, in the RBW
+    spectrum_f_hz: np.ndarray | None = None
+    spectrum_w_per_hz: np.ndarray | None = None
+
+
+def _dirichlet_dtft(X: np.ndarray, k: int, nu: np.ndarray, n: int) -> np.ndarray:
+    """DTFT of a length-``n`` record at fractional native bins ``nu``, from its DFT ``X`` (native grid).
+
+    X(nu) = sum_m X_m K(nu - m), K(u) = exp(-j pi u (n-1)/n) sin(pi u) / (n sin(pi u / n)).
+    Only bins within _KERNEL_HALF_WIDTH of bin ``k`` are used.
+    """
+    lo = max(k - _KERNEL_HALF_WIDTH, 0)
+    hi = min(k + _KERNEL_HALF_WIDTH + 1, X.size)
+    m = np.arange(lo, hi)
+    u = nu[:, None] - m[None, :]
+    near = np.abs(u) < 1e-12
+    u_safe = np.where(near, 1.0, u)
+    kern = np.exp(-1j * np.pi * u_safe * (n - 1) / n) * np.sin(np.pi * u_safe) / (
+        n * np.sin(np.pi * u_safe / n))
+    kern = np.where(near, 1.0, kern)
+    return kern @ X[lo:hi]
+
+
+def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
+    """Vertex offset of the parabola through three equally spaced points (in steps)."""
+    den = y_m1 - 2.0 * y0 + y_p1
+    if den >= 0 or not np.isfinite(den):
+        return 0.0
+    return float(np.clip(0.5 * (y_m1 - y_p1) / den, -0.5, 0.5))
+
+
+def _crossing(x: np.ndarray, y: np.ndarray, level: float, start: int, step: int) -> float | None:
+    """First x where y falls below ``level`` walking from ``start`` by ``step`` (linear interp)."""
+    i = start
+    while 0 <= i + step < y.size:
+        if y[i + step] < level:
+            y0, y1 = y[i], y[i + step]
+            frac = (y0 - level) / (y0 - y1) if y0 != y1 else 0.0
+            return float(x[i] + frac * (x[i + step] - x[i]))
+        i += step
+    return None
+
+
+def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
+                    highpass_hz: float, zero_pad: int, peak_method: str, noise_span_hz: float,
+                    noise_guard_hz: float, averaging: str = "coherent",
+                    transfer=None, keep_spectrum: bool = False) -> PeakResult:
+    """Spectrum, peak, 3 dB points, noise level and SNR of voltage records.
+
+    Parameters
+    ----------
+    v : ndarray, shape (batch, averages, N), float64, volts across ``load_ohm``.
+    transfer : callable f_hz -> complex gain applied to the spectrum (detector response of a
+        linear chain), or None.
+    """
+    v = np.asarray(v, dtype=float)
+    if v.ndim != 3:
+        raise ValueError("analyze_records expects (batch, averages, N) records")
+    batch, n_avg, n = v.shape
+    m = n * zero_pad
+    if averaging == "coherent":
+        v = v.mean(axis=1, keepdims=True)
+    X = scipy.fft.rfft(v, n=m, axis=-1, workers=-1)
+    f = np.arange(X.shape[-1]) * (fs_hz / m)
+    if transfer is not None:
+        X = X * transfer(f)
+    # One-sided PSD in W/Hz (eqs. 2.6.3-2.6.4 made one-sided).
+    psd = (2.0 / (n * fs_hz * load_ohm)) * np.mean(np.abs(X) ** 2, axis=1)
+    df_native = fs_hz / n
+    search = f >= highpass_hz
+    if not np.any(search):
+        raise ValueError("no FFT bin above processing.highpass_hz (sys.f_highpass)")
+    first = int(np.argmax(search))
+
+    out = {k: np.empty(batch) for k in ("f", "p", "nz", "lo", "hi")}
+    for b in range(batch):
+        spec = psd[b]
+        kp = first + int(np.argmax(spec[first:]))
+        f_pk, p_pk = f[kp], spec[kp]
+        fine_nu = fine_p = None
+        if peak_method == "parabolic" and 0 < kp < spec.size - 1:
+            lg = np.log(np.maximum(spec[kp - 1:kp + 2], np.finfo(float).tiny))
+            d = _parabolic(*lg)
+            f_pk = f[kp] + d * fs_hz / m
+            p_pk = float(np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
+        elif peak_method == "dtft":
+            # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
+            k_nat = int(round(kp / zero_pad))
+            nu = k_nat + np.arange(-_THREEDB_SPAN, _THREEDB_SPAN + _FINE_STEP / 2, _FINE_STEP)
+            nu = nu[(nu * df_native >= highpass_hz) & (nu <= n / 2)]
+            Pn = np.zeros(nu.size)
+            for a in range(X.shape[1]):
+                Pn += np.abs(_dirichlet_dtft(X[b, a, ::zero_pad], k_nat, nu, n)) ** 2
+            Pn *= 2.0 / (n * fs_hz * load_ohm * X.shape[1])
+            i = int(np.argmax(Pn))
+            if 0 < i < nu.size - 1:
+                lg = np.log(np.maximum(Pn[i - 1:i + 2], np.finfo(float).tiny))
+                d = _parabolic(*lg)
+            else:
+                d = 0.0
+            f_pk = (nu[i] + d * _FINE_STEP) * df_native
+            p_pk = float(Pn[i]) if d == 0.0 else float(np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
+            fine_nu, fine_p = nu, Pn
+        # 3 dB points: on the fine DTFT if we have it, else on the (padded) spectrum.
+        half = 0.5 * p_pk
+        lo = hi = None
+        if fine_nu is not None:
+            i = int(np.argmax(fine_p))
+            lo = _crossing(fine_nu * df_native, fine_p, half, i, -1)
+            hi = _crossing(fine_nu * df_native, fine_p, half, i, +1)
+        if lo is None:
+            lo = _crossing(f, spec, half, kp, -1)
+        if hi is None:
+            hi = _crossing(f, spec, half, kp, +1)
+        out["lo"][b] = f[first] if lo is None else lo
+        out["hi"][b] = f[-1] if hi is None else hi
+        # Noise: mean PSD over the span beside the peak, guard bins excluded.
+        dist = np.abs(f - f_pk)
+        sel = (dist <= 0.5 * noise_span_hz) & (dist > noise_guard_hz) & search
+        if np.count_nonzero(sel) < 8:
+            sel = (dist > noise_guard_hz) & search
+        out["nz"][b] = float(np.mean(spec[sel]))
+        out["f"][b] = f_pk
+        out["p"][b] = p_pk * df_native  # tone power, eq. 2.6.6 with df = 1/T
+    noise_in_rbw = out["nz"] * rbw_hz
+    return PeakResult(
+        f_peak_hz=out["f"], peak_power_w=out["p"], noise_psd_w_per_hz=out["nz"],
+        f_lo_hz=out["lo"], f_hi_hz=out["hi"], snr=out["p"] / noise_in_rbw,
+        spectrum_f_hz=f if keep_spectrum else None,
+        spectrum_w_per_hz=psd if keep_spectrum else None,
+    )

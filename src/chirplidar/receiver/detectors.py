@@ -1,0 +1,80 @@
+"""Photodetector models: DC operating point, noise PSDs and the output chain of each receiver.
+
+``DetectorNoise`` holds the one-sided current PSDs referred to the photodiode; multiplied by the
+transimpedance squared and divided by the load they give the output PSDs reported as Ns, Nt, Ne.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import shot_psd, thermal_psd
+
+
+@dataclass(frozen=True)
+class DetectorNoise:
+    shot: float       # A^2/Hz, from signal, LO, dark and background currents
+    thermal: float    # A^2/Hz, Johnson noise of the load (and APD feedback / detector resistance)
+    amplifier: float  # A^2/Hz, amplifier equivalent input noise (NEP or TIA current/voltage noise)
+    gain_ohm: float   # transimpedance: output volts per photocurrent ampere
+    load_ohm: float   # load the output power is referred to
+    bandwidth_hz: float
+
+    @property
+    def total(self) -> float:
+        return self.shot + self.thermal + self.amplifier
+
+    def output_psd_w_per_hz(self, current_psd):
+        return np.asarray(current_psd) * self.gain_ohm**2 / self.load_ohm
+
+
+def balanced_noise(cfg, resp1: float, resp2: float, mean_power_1_w: float,
+                   mean_power_2_w: float, *, arm: int | None = None) -> DetectorNoise:
+    """Balanced photodetector (Table 4.8). ``arm`` = 0 or 1 for one photodiode read alone."""
+    b = cfg.balanced
+    dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
+    i1, i2 = resp1 * mean_power_1_w, resp2 * mean_power_2_w
+    if arm is None:
+        shot, r_mean = shot_psd(i1 + i2 + 2 * dark), 0.5 * (resp1 + resp2)
+    else:
+        shot, r_mean = shot_psd((i1, i2)[arm] + dark), (resp1, resp2)[arm]
+    thermal = thermal_psd(b.noise_temperature_k, b.output_impedance_ohm) if b.noise_temperature_k else 0.0
+    return DetectorNoise(shot=float(shot), thermal=thermal, amplifier=(b.nep_w_per_rthz * r_mean) ** 2,
+                         gain_ohm=b.transimpedance_ohm, load_ohm=b.output_impedance_ohm,
+                         bandwidth_hz=b.bandwidth_hz)
+
+
+def pin_noise(cfg, resp: float, mean_power_w: float) -> DetectorNoise:
+    p = cfg.pin
+    dark = p.solar_current_a + p.background_current_a + p.leakage_current_a
+    thermal = thermal_psd(p.noise_temperature_k, p.output_impedance_ohm) if p.noise_temperature_k else 0.0
+    return DetectorNoise(shot=float(shot_psd(resp * mean_power_w + dark)), thermal=thermal,
+                         amplifier=(p.nep_w_per_rthz * resp) ** 2, gain_ohm=p.transimpedance_ohm,
+                         load_ohm=p.output_impedance_ohm, bandwidth_hz=p.bandwidth_hz)
+
+
+def apd_noise(cfg, resp: float, mean_power_w: float) -> DetectorNoise:
+    """APD with transimpedance amplifier (Table 4.7, eqs. 2.5.1-2.5.5).
+
+    Bulk currents (signal, background, solar) are multiplied: 2 q I M^2 F; surface leakage is not.
+    Referred to the primary photocurrent, the multiplied shot term is 2 q I F (the M^2 divides out)
+    and the circuit terms divide by M^2. Amplifier voltage noise sees the input admittance
+    1/Rfb + 1/Ro + j 2 pi fo (Cdet + Cfb), evaluated at the receiver centre frequency ``fo``.
+    """
+    a = cfg.apd
+    m, f_excess = a.gain, a.excess_noise_factor
+    bulk = resp * mean_power_w + a.solar_current_a + a.background_current_a
+    shot = float(shot_psd(bulk)) * f_excess + float(shot_psd(a.leakage_current_a)) / m**2
+    thermal = (thermal_psd(a.feedback_temperature_k, a.feedback_resistance_ohm)
+               + thermal_psd(a.detector_temperature_k, a.dynamic_resistance_ohm)) / m**2
+    admittance2 = ((1 / a.feedback_resistance_ohm + 1 / a.dynamic_resistance_ohm) ** 2
+                   + (2 * np.pi * a.center_frequency_hz
+                      * (a.detector_capacitance_f + a.feedback_capacitance_f)) ** 2)
+    amp = (a.amp_current_noise_a_per_rthz**2 + a.amp_voltage_noise_v_per_rthz**2 * admittance2) / m**2
+    bandwidth = 1.0 / (2 * np.pi * a.feedback_resistance_ohm * a.feedback_capacitance_f)
+    # Referred to the primary photocurrent, the transimpedance includes the gain M.
+    return DetectorNoise(shot=shot, thermal=thermal, amplifier=float(amp),
+                         gain_ohm=a.feedback_resistance_ohm * m, load_ohm=a.feedback_resistance_ohm,
+                         bandwidth_hz=bandwidth)

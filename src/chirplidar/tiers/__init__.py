@@ -1,0 +1,8 @@
+"""Fidelity tiers: one interface ``(config, rng, *, batch, keep_spectrum) -> dict``, three costs."""
+
+from .link import simulate_link
+from .rf import simulate_rf
+
+TIERS = {"rf": simulate_rf, "link": simulate_link}
+
+__all__ = ["TIERS", "simulate_rf", "simulate_link"]

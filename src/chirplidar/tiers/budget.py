@@ -1,0 +1,100 @@
+"""Deterministic quantities shared by every tier: powers, delays, beat frequency, scales.
+
+Computed once per configuration, so the rf and link tiers cannot disagree on them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..channel.bench import power_transmission, round_trip_delay_s
+from ..transmitter.mzm import mzm_mean_power_transmission
+from ..units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, responsivity_a_per_w
+from ..waveform import waveform_from_config
+
+
+@dataclass(frozen=True)
+class Budget:
+    train: object
+    nu_hz: float                 # optical frequency c / lambda
+    mzm_mean_transmission: float # <cos^2(pi V / 2 V_pi)> over a period
+    pchrp_w: float               # generator power into the modulator while chirping
+    tx_gain: float               # transmit arm power gain after the modulator (split, amplifier)
+    ptx_w: float                 # mean transmitted optical power (signal)
+    ase_psd_w_per_hz: float      # ASE PSD at the transmitter output (one polarisation), 0 if none
+    h: float                     # channel power transmission
+    psig_w: float                # mean received optical power
+    delay_s: float               # round-trip delay tau
+    ref_delay_s: float           # reference (LO / dechirp) delay tau_ref
+    lag_s: float                 # tau - tau_ref reduced to [0, period)
+    f_beat_hz: float             # kappa * lag (FM) ; 0 for PN
+    rate_hz_per_s: float
+    group_index: float
+    quantized: bool
+
+    @property
+    def d_offset_m(self) -> float:
+        return SPEED_OF_LIGHT_M_S * self.ref_delay_s / (2.0 * self.group_index)
+
+    def range_from_lag_m(self, lag_s):
+        return SPEED_OF_LIGHT_M_S * (np.asarray(lag_s) + self.ref_delay_s) / (2.0 * self.group_index)
+
+
+def reference_delay_s(config, delay_s: float, rate_hz_per_s: float) -> float:
+    """Reference delay: explicit, or the ``sys.fmaxopt`` rule (delay the reference until the beat
+    falls to ``max_beat_frequency_hz``; zero when it already does)."""
+    if config.system.reference_delay_s is not None:
+        return config.system.reference_delay_s
+    if config.system.modulation == "pn_code":
+        return 0.0
+    f_max = config.system.max_beat_frequency_hz
+    return max(0.0, delay_s - f_max / rate_hz_per_s)
+
+
+def make_budget(config) -> Budget:
+    train = waveform_from_config(config)
+    nu = SPEED_OF_LIGHT_M_S / config.laser.wavelength_m
+    m2 = mzm_mean_power_transmission(train, config.modulator.bias_v, config.modulator.v_pi_v)
+    ri = config.modulator.input_impedance_ohm
+    pchrp = train.amplitude_v**2 / (2.0 * ri) + train.dc_v**2 / ri
+    tx = config.transmitter
+    gain = float(db_to_ratio(-tx.tx_split_loss_db))
+    ase = 0.0
+    if tx.amplifier:
+        g = float(db_to_ratio(tx.amplifier_gain_db))
+        f_noise = float(db_to_ratio(tx.amplifier_noise_figure_db))
+        # S_ASE = n_sp h nu (G - 1) with F = (2 n_sp (G - 1) + 1) / G  =>  S = (F G - 1) h nu / 2.
+        ase = max(f_noise * g - 1.0, 0.0) * PLANCK_J_S * nu / 2.0
+        gain *= g
+    ptx = config.laser.power_w * m2 * gain
+    h = power_transmission(config)
+    delay = round_trip_delay_s(config)
+    rate = train.rate_hz_per_s if hasattr(train, "rate_hz_per_s") else 0.0
+    ref = reference_delay_s(config, delay, rate) if rate else reference_delay_s(config, delay, 1.0)
+    quantized = config.simulation.delay_method == "resample"
+    if quantized:
+        q = 1.0 / (config.simulation.sample_rate_hz * config.simulation.upsample_factor)
+        delay, ref = round(delay / q) * q, round(ref / q) * q
+    lag = float(np.mod(delay - ref, train.period_s))
+    return Budget(train=train, nu_hz=nu, mzm_mean_transmission=m2, pchrp_w=pchrp, tx_gain=gain,
+                  ptx_w=ptx, ase_psd_w_per_hz=ase, h=h, psig_w=ptx * h, delay_s=delay,
+                  ref_delay_s=ref, lag_s=lag, f_beat_hz=rate * lag, rate_hz_per_s=rate,
+                  group_index=config.channel.group_index, quantized=quantized)
+
+
+def responsivities(config, nu_hz: float) -> dict[str, float]:
+    lam = SPEED_OF_LIGHT_M_S / nu_hz
+    return {
+        "balanced_1": responsivity_a_per_w(config.balanced.quantum_efficiency_1, lam),
+        "balanced_2": responsivity_a_per_w(config.balanced.quantum_efficiency_2, lam),
+        "pin": responsivity_a_per_w(config.pin.quantum_efficiency, lam),
+        "apd": responsivity_a_per_w(config.apd.quantum_efficiency, lam),
+        "heterodyne": responsivity_a_per_w(config.heterodyne.quantum_efficiency, lam),
+    }
+
+
+def coupler_field_transmission(config) -> float:
+    """Field factor of the receiver coupler's excess loss (applies to LO and signal alike)."""
+    return float(np.sqrt(db_to_ratio(-config.balanced.coupler_excess_loss_db)))

@@ -1,0 +1,146 @@
+"""What every tier shares: Table 4.10 outputs, flags, the operator's optimal carrier phase."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+
+from ..processing.spectrum import PeakResult, _parabolic
+from ..receiver import HYBRID_90
+from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
+
+# Thesis Table 4.10: output names and units.
+OUTPUT_UNITS: dict[str, str] = {
+    "Pchrp": "dBm", "Ptx": "dBm", "Psig": "dBm", "Ne": "dBm/Hz", "Ns": "dBm/Hz", "Nt": "dBm/Hz",
+    "d_offset": "m", "d_rx": "m", "d_lo": "m", "d_hi": "m", "d_error": "m", "d_3dB": "m",
+    "d_res": "m", "Crx": "dBm", "Navg": "dBm", "SNR": "dB",
+}
+OUTPUT_NAMES: tuple[str, ...] = tuple(OUTPUT_UNITS)
+OUTPUT_LONG_NAMES: dict[str, str] = {
+    "Pchrp": "chirp waveform generator output power", "Ptx": "transmitted optical power",
+    "Psig": "received optical power", "Ne": "equivalent amplifier input noise PSD",
+    "Ns": "photodiode shot noise PSD", "Nt": "photodiode thermal noise PSD",
+    "d_offset": "distance offset due to local (reference) delay", "d_rx": "detected target distance",
+    "d_lo": "lower bound of the 3 dB range uncertainty", "d_hi": "upper bound of the 3 dB range uncertainty",
+    "d_error": "range error dst - d_rx", "d_3dB": "3 dB range resolution d_hi - d_lo",
+    "d_res": "analytical range resolution c / (2 B sqrt(2 SNR)) (eq. 2.2.2)",
+    "Crx": "received beat power read from the spectrum", "Navg": "noise level in the RBW read from the spectrum",
+    "SNR": "signal-to-noise ratio in the RBW (eq. 2.6.12)",
+}
+
+
+def optimal_phase(mode: str) -> float:
+    """Signal carrier phase (rad, relative to the LO) that maximises the primary beat.
+
+    Balanced 3 dB coupler: i1 - i2 = 2 R Im(E_LO E_s*), largest for psi = -pi/2.
+    Hybrid arm 1: 2 Re(S00 S01* E_LO E_s*), largest for psi = arg(S00 S01*).
+    Direct and heterodyne detection do not depend on it.
+    """
+    if mode == "homodyne":
+        return -0.5 * np.pi
+    if mode == "phase_diversity":
+        return float(np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1])))
+    return 0.0
+
+
+def detection_flags(config, bud) -> list[str]:
+    flags = []
+    if bud.psig_w <= 0:
+        flags.append("no_return")
+    if config.system.modulation == "fm_chirp":
+        rise, period = bud.train.rise_s, bud.train.period_s
+        if bud.lag_s >= rise and period - bud.lag_s >= rise:
+            flags.append("no_overlap")
+        f_top = config.simulation.sample_rate_hz / 2
+        if not (config.processing.highpass_hz <= bud.f_beat_hz <= f_top):
+            flags.append("beat_out_of_band")
+    return flags
+
+
+def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=None, tier: str,
+                     lag_s=None, lag_lo_s=None, lag_hi_s=None) -> dict:
+    """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model."""
+    n = np.size(result.snr)
+    rate = bud.rate_hz_per_s
+    if lag_s is None:
+        lag_s = result.f_peak_hz / rate
+        lag_lo_s, lag_hi_s = result.f_lo_hz / rate, result.f_hi_hz / rate
+    d_rx = bud.range_from_lag_m(lag_s)
+    d_lo, d_hi = bud.range_from_lag_m(lag_lo_s), bud.range_from_lag_m(lag_hi_s)
+    snr = np.asarray(result.snr, dtype=float)
+    no_return = "no_return" in flags
+    bandwidth = bud.train.bandwidth_hz
+    with np.errstate(divide="ignore"):
+        d_res = np.where(snr > 0, SPEED_OF_LIGHT_M_S / (2 * bud.group_index * bandwidth
+                                                        * np.sqrt(2 * np.maximum(snr, 1e-300))), np.inf)
+    full = lambda v: np.full(n, float(v))  # noqa: E731
+    out = {
+        "Pchrp": full(power_dbm(bud.pchrp_w)), "Ptx": full(power_dbm(bud.ptx_w)),
+        "Psig": full(power_dbm(bud.psig_w)),
+        "Ne": full(power_dbm(noise.output_psd_w_per_hz(noise.amplifier))),
+        "Ns": full(power_dbm(noise.output_psd_w_per_hz(noise.shot))),
+        "Nt": full(power_dbm(noise.output_psd_w_per_hz(noise.thermal))),
+        "d_offset": full(bud.d_offset_m), "d_rx": np.asarray(d_rx, float),
+        "d_lo": np.asarray(d_lo, float), "d_hi": np.asarray(d_hi, float),
+        "d_error": config.channel.distance_m - np.asarray(d_rx, float),
+        "d_3dB": np.asarray(d_hi, float) - np.asarray(d_lo, float), "d_res": d_res,
+        # Zero received power: there is no signal to read, whatever the noise peak is.
+        "Crx": np.full(n, -np.inf) if no_return else power_dbm(result.peak_power_w),
+        "Navg": power_dbm(result.noise_psd_w_per_hz * config.processing.rbw_hz),
+        "SNR": np.full(n, -np.inf) if no_return else ratio_db(snr),
+    }
+    if no_return:
+        out["d_res"] = np.full(n, np.inf)
+    out = {k: np.atleast_1d(v) for k, v in out.items()}
+    out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
+    for key, value in (extra or {}).items():
+        if key.endswith("_w"):
+            out[key[:-2]] = np.atleast_1d(power_dbm(value))
+        elif key.endswith("_snr"):
+            out[key[:-4] + "_SNR"] = np.atleast_1d(ratio_db(value))
+        else:
+            out[key] = np.atleast_1d(value)
+    out["flags"] = list(flags)
+    out["tier"] = tier
+    if result.spectrum_f_hz is not None:
+        out["spectrum"] = {"f_hz": result.spectrum_f_hz, "psd_w_per_hz": result.spectrum_w_per_hz,
+                           "f_peak_hz": result.f_peak_hz, "f_lo_hz": result.f_lo_hz,
+                           "f_hi_hz": result.f_hi_hz, "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
+                           "rbw_hz": config.processing.rbw_hz}
+    return out
+
+
+def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
+    """Cross-correlation ranging for PN codes (thesis Fig. 2.3).
+
+    Returns a PeakResult whose ``f_peak_hz`` holds the lag in seconds (the caller converts), the
+    SNR as matched-filter peak power over the mean off-peak correlation power, and Crx as the
+    detected code power.
+    """
+    v = np.asarray(v).mean(axis=1) if proc.averaging == "coherent" else np.asarray(v)[:, 0]
+    n = v.shape[-1]
+    C = scipy.fft.irfft(scipy.fft.rfft(v, axis=-1) * np.conj(scipy.fft.rfft(ref)), n=n, axis=-1)
+    energy = float(np.sum(ref * ref))
+    lags, lo, hi, peak_w, noise_w, snr = (np.empty(v.shape[0]) for _ in range(6))
+    for b in range(v.shape[0]):
+        c2 = C[b] ** 2
+        k = int(np.argmax(c2))
+        d = _parabolic(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
+        lags[b] = (k + d) / fs
+        half = 0.5 * c2[k]
+        left = k
+        while c2[left - 1] >= half and k - left < n // 2:
+            left -= 1
+        right = k
+        while c2[(right + 1) % n] >= half and right - k < n // 2:
+            right += 1
+        lo[b], hi[b] = (left - 0.5) / fs, (right + 0.5) / fs
+        guard = np.ones(n, bool)
+        guard[np.arange(k - 8, k + 9) % n] = False
+        off = float(np.mean(c2[guard]))
+        snr[b] = c2[k] / off
+        amp = C[b, k] / energy
+        peak_w[b] = amp**2 * energy / n / load
+        noise_w[b] = peak_w[b] / snr[b] / proc.rbw_hz
+    return PeakResult(f_peak_hz=lags, peak_power_w=peak_w, noise_psd_w_per_hz=noise_w,
+                      f_lo_hz=lo, f_hi_hz=hi, snr=snr)

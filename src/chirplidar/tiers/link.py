@@ -1,0 +1,205 @@
+"""The link tier: closed-form link budget for the same configuration as the rf tier.
+
+Signal: the beat tone an FFT over the record reads, (1/2) <A(t)>^2 for a tone of slowly varying
+current amplitude A(t) (gated by the chirp overlap), with A from the Jacobi-Anger closed forms of the
+MZM (see :mod:`chirplidar.transmitter.mzm`). Noise: the one-sided current PSDs of the detector at its
+mean operating point. SNR = tone / (noise PSD x RBW), as the rf tier measures it (eq. 2.6.12).
+
+Range: the measured beat is drawn around the true one with the Cramer-Rao spread of a tone of the
+overlap duration (Rife & Boorstyn 1974), so the link tier's d_rx has a realistic scatter; no spectrum.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import j0
+
+from ..processing.spectrum import PeakResult
+from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
+from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
+from ..transmitter.mzm import mzm_fundamental_field, mzm_power_fundamental
+from .budget import coupler_field_transmission, make_budget, responsivities
+from .common import assemble_outputs, detection_flags
+
+_GRID = 8192  # points over the record for slowly varying envelopes
+
+
+def _coherence(a: np.ndarray, dt: float, linewidth_hz: float, lag_s: float) -> float:
+    """E|sum A_n exp(j dtheta_n)|^2 / (sum A_n)^2 for self-homodyne phase noise.
+
+    dtheta(t) = theta(t - tau_ref) - theta(t - tau); E exp(j(dtheta_1 - dtheta_2)) =
+    exp(-2 pi dnu min(|t1 - t2|, lag)).
+    """
+    if linewidth_hz <= 0 or a.sum() == 0:
+        return 1.0
+    n = a.size
+    acf = np.fft.irfft(np.abs(np.fft.rfft(a, 2 * n)) ** 2)[:n]
+    d = np.arange(n) * dt
+    rho = np.exp(-2 * np.pi * linewidth_hz * np.minimum(d, lag_s))
+    total = acf[0] * rho[0] + 2 * np.sum(acf[1:] * rho[1:])
+    return float(total / a.sum() ** 2)
+
+
+def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
+                  keep_spectrum: bool = False) -> dict:
+    bud = make_budget(config)
+    if config.system.modulation == "pn_code":
+        raise ValueError("the link tier models FM chirps only; use --tier rf for system.modulation = "
+                         "'pn_code' (sys.MxMode = PN)")
+    sim, proc = config.simulation, config.processing
+    train = bud.train
+    t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
+    n_chirps = int(np.floor(sim.duration_s / train.period_s + 1e-9))
+    gate = (t < n_chirps * train.period_s).astype(float)
+    w_lo = train.envelope(np.mod(t - bud.ref_delay_s, train.period_s))
+    w_sig = train.envelope(np.mod(t - bud.delay_s, train.period_s))
+    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
+    c_lo = mzm_fundamental_field(train, bias, vpi, w_lo)
+    c_sig = mzm_fundamental_field(train, bias, vpi, w_sig)
+    s_sig = config.laser.power_w * bud.tx_gain * bud.h
+    resp = responsivities(config, bud.nu_hz)
+    rx = config.system.receiver
+    mode = config.system.coherent_mode if rx == "coherent" else "direct"
+    cp = config.channel.carrier_phase
+    phase_power = {"optimal": 1.0, "random": 0.5}.get(cp)
+    if phase_power is None:  # propagation: the actual static phase
+        psi = -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
+        phase_power = float(np.sin(psi) ** 2) if mode == "homodyne" else float(np.cos(
+            psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2)
+    f_b = bud.f_beat_hz
+    flags = detection_flags(config, bud)
+    extra = {}
+    coherence = 1.0
+    if mode in ("homodyne", "phase_diversity"):
+        b = config.balanced
+        s_lo = b.lo_power_w / bud.mzm_mean_transmission
+        # Beat of the two fields' fundamentals: (1/2) c_lo c_sig cos(phi_lo - phi_sig).
+        env = 0.5 * c_lo * c_sig * gate * np.sqrt(s_lo * s_sig)
+        coherence = _coherence(env, t[1] - t[0], config.laser.linewidth_hz, bud.lag_s)
+        loss = coupler_field_transmission(config) ** 2
+        env = env * loss
+        S = COUPLER_3DB if mode == "homodyne" else HYBRID_90
+        mean_p = [loss * (abs(S[k, 0]) ** 2 * b.lo_power_w + abs(S[k, 1]) ** 2 * bud.psig_w)
+                  for k in (0, 1)]
+        h2 = abs(single_pole(b.bandwidth_hz)(f_b)) ** 2
+        if mode == "homodyne":
+            amp = (resp["balanced_1"] + resp["balanced_2"]) * np.mean(env)  # 2 R Im(E_LO E_s*)
+            tone = 0.5 * amp**2 * phase_power * coherence
+            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p)
+            snr = tone / (noise.total * proc.rbw_hz)
+        else:
+            k01 = 2 * abs(HYBRID_90[0, 0] * HYBRID_90[0, 1])
+            arm_snr, arm_tone = [], []
+            for arm, share in ((0, phase_power), (1, 1.0 - phase_power)):
+                r = (resp["balanced_1"], resp["balanced_2"])[arm]
+                tone_k = 0.5 * (r * k01 * np.mean(env)) ** 2 * share * coherence
+                nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=arm)
+                arm_tone.append(tone_k)
+                arm_snr.append(tone_k / (nz.total * proc.rbw_hz))
+            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
+            n_comb = sum(balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p,
+                                        arm=a).total for a in (0, 1))
+            tone = sum(arm_tone)
+            snr = tone / (n_comb * proc.rbw_hz)
+            extra = {"arm1_Crx_w": np.full(batch, arm_tone[0] * h2 * noise.gain_ohm**2 / noise.load_ohm),
+                     "arm2_Crx_w": np.full(batch, arm_tone[1] * h2 * noise.gain_ohm**2 / noise.load_ohm),
+                     "arm1_snr": np.full(batch, arm_snr[0]), "arm2_snr": np.full(batch, arm_snr[1])}
+            noise_total = n_comb / 2  # per-arm average, as the rf tier's summed spectra read it
+        noise_psd = (noise.total if mode == "homodyne" else noise_total)
+        tone_out = tone * (1.0 if mode == "homodyne" else 1.0)
+    elif mode == "heterodyne":
+        tone, noise, snr, noise_psd = _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp)
+        h2 = 1.0
+        tone_out = tone
+    else:
+        tone, noise, snr, noise_psd = _direct_link(config, bud, train, t, gate, w_sig, s_sig, resp)
+        h2 = 1.0
+        tone_out = tone
+    if config.processing.averaging == "coherent" and cp != "random" and config.laser.linewidth_hz == 0:
+        snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
+    out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
+    # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
+    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)) * sim.duration_s, 1.0 / proc.rbw_hz * 0.1)
+    e_over_n0 = snr * proc.rbw_hz * t_ov
+    sigma_f = np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * t_ov)
+    f_meas = f_b + sigma_f * rng.standard_normal(batch)
+    half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
+    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.full(batch, tone_out * out_scale),
+                        noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
+                        f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
+                        snr=np.full(batch, float(snr)))
+    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="link")
+
+
+def _mixer_noise_factor(train, t, gate, f_b, bandwidth_hz, ref_delay_s):
+    """Mean |H|^2-weighted <r^2>/4 (S(f_b + f_inst) + S(f_inst - f_b)) factor of RF dechirp mixing."""
+    tc = np.mod(t - ref_delay_s, train.period_s)
+    w = train.envelope(tc) * gate
+    f_inst = train.f_start_hz + train.rate_hz_per_s * tc
+    H = single_pole(bandwidth_hz)
+    h2 = np.abs(H(f_inst + f_b)) ** 2 + np.abs(H(np.abs(f_inst - f_b))) ** 2
+    return float(np.mean(w**2 * h2) / 4.0), w, np.abs(H(f_inst))
+
+
+def _direct_link(config, bud, train, t, gate, w_sig, s_sig, resp):
+    """Direct detection: photocurrent at the chirp frequency, RF dechirp against the reference."""
+    rx = config.system.receiver
+    if rx == "pin":
+        r, noise = resp["pin"], pin_noise(config, resp["pin"], bud.psig_w)
+    else:
+        r, noise = resp["apd"], apd_noise(config, resp["apd"], bud.psig_w)
+    p1 = mzm_power_fundamental(train, config.modulator.bias_v, config.modulator.v_pi_v, w_sig)
+    mix, w_ref, h_sig = _mixer_noise_factor(train, t, gate, bud.f_beat_hz, noise.bandwidth_hz,
+                                            bud.ref_delay_s)
+    # The signal's instantaneous chirp frequency equals the reference's, delayed by the lag.
+    tc_sig = np.mod(t - bud.delay_s, train.period_s)
+    h_at_sig = np.abs(single_pole(noise.bandwidth_hz)(train.f_start_hz + train.rate_hz_per_s * tc_sig))
+    beat = 0.5 * r * s_sig * p1 * h_at_sig * w_ref
+    tone = 0.5 * np.mean(beat) ** 2
+    noise_psd = noise.total * mix
+    return tone, noise, tone / (noise_psd * config.processing.rbw_hz), noise_psd
+
+
+def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
+    """Heterodyne: IF cross term, synchronous or envelope demodulation, RF dechirp.
+
+    Envelope detection is modelled by the fundamental of |a(t)| (rectified field) and, below an IF
+    SNR of a few, by the square-law small-signal suppression factor rho / (rho + 1/2)
+    (Davenport & Root 1958, Ch. 12) - an approximation; the rf tier is the reference.
+    """
+    b, h = config.balanced, config.heterodyne
+    r = resp["heterodyne"]
+    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
+    arms = 1 if h.capped_arm else 2
+    loss = coupler_field_transmission(config) ** 2
+    mean_p1 = 0.5 * loss * (b.lo_power_w + bud.psig_w)
+    noise = balanced_noise(config, r, r, mean_p1, mean_p1 if arms == 2 else 0.0,
+                           arm=0 if arms == 1 else None)
+    if h.demodulation == "envelope":
+        # Fundamental of |cos(alpha + beta w sin phi)| over phi, per envelope value.
+        phi = np.linspace(0, 2 * np.pi, 256, endpoint=False)
+        alpha = 0.5 * np.pi * (bias + train.dc_v) / vpi
+        beta = 0.5 * np.pi * train.amplitude_v / vpi
+        wg = np.linspace(0, 1, 65)
+        fund = np.array([abs(2 * np.mean(np.abs(np.cos(alpha + beta * w * np.sin(phi))) * np.sin(phi)))
+                         for w in wg])
+        c = np.interp(w_sig, wg, fund)
+    else:
+        c = mzm_fundamental_field(train, bias, vpi, w_sig)
+    # IF cross term amplitude: arms x R sqrt(P_LO s_sig) |a|; the demodulated fundamental c(w).
+    base = arms * r * loss * np.sqrt(b.lo_power_w * s_sig)
+    mix, w_ref, _ = _mixer_noise_factor(train, t, gate, bud.f_beat_hz, 1e30, bud.ref_delay_s)
+    beat = 0.5 * base * c * w_ref * gate
+    tone = 0.5 * np.mean(beat) ** 2
+    # Demodulated baseband noise: one-sided PSD 2 S per quadrature of the complex envelope.
+    noise_psd = 2.0 * noise.total * mix * 2.0
+    snr = tone / (noise_psd * config.processing.rbw_hz)
+    if h.demodulation == "envelope":
+        from .rf import if_half_width_hz
+
+        mean_a2 = 0.5 * (1 + np.cos(2 * np.arcsin(0) + np.pi * (bias + train.dc_v) / vpi)
+                         * np.mean(j0(2 * 0.5 * np.pi * train.amplitude_v / vpi * w_sig)))
+        if_power = 0.5 * base**2 * mean_a2
+        rho = if_power / (noise.total * 2 * if_half_width_hz(config, bud))
+        snr *= rho / (rho + 0.5)
+    return tone, noise, snr, noise_psd

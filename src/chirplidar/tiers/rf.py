@@ -1,0 +1,233 @@
+"""The rf tier: the full-rate time-domain chain of thesis Chapter 4 (LIDAR_main.m).
+
+chirp at Fs -> MZM field -> LO / transmit split -> (amplifier) -> channel delay -> coupler or hybrid
+-> photodiodes with shot, thermal and amplifier noise -> (RF dechirp) -> FFT peak analysis.
+
+Optical fields are complex envelopes about the laser frequency in float64; the carrier is never
+sampled. Records have shape (batch, averages, N): no Python loop over samples or averages.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.fft
+
+from ..processing import analyze_records
+from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
+from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
+from ..transmitter import mzm_field, wiener_phase
+from ..units import ELEMENTARY_CHARGE_C
+from .budget import Budget, coupler_field_transmission, make_budget, responsivities
+from .common import assemble_outputs, detection_flags, optimal_phase
+
+
+def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
+    n = x.shape[-1]
+    X = scipy.fft.rfft(x, axis=-1, workers=-1)
+    X *= single_pole(bandwidth_hz)(np.arange(X.shape[-1]) * fs_hz / n)
+    return scipy.fft.irfft(X, n=n, axis=-1, workers=-1)
+
+
+def _shot(rng, current_a: np.ndarray, dark_a: float, fs_hz: float) -> np.ndarray:
+    """Shot noise of a time-varying current: variance q (I(t) + I_dark) Fs per sample."""
+    var = ELEMENTARY_CHARGE_C * (np.maximum(current_a, 0.0) + dark_a) * fs_hz
+    return rng.standard_normal(np.shape(var)) * np.sqrt(var)
+
+
+def _white(rng, shape, psd_one_sided: float, fs_hz: float) -> np.ndarray:
+    if psd_one_sided <= 0:
+        return np.zeros(shape)
+    return rng.standard_normal(shape) * np.sqrt(psd_one_sided * fs_hz / 2.0)
+
+
+def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
+                keep_spectrum: bool = False) -> dict:
+    """Simulate ``batch`` independent shots of one configuration. Returns arrays of shape (batch,)."""
+    bud = make_budget(config)
+    sim, sysc, proc = config.simulation, config.system, config.processing
+    fs, n, k_avg = sim.sample_rate_hz, config.n_samples, proc.averages
+    t = np.arange(n) / fs
+    train = bud.train
+    n_chirps = int(np.floor(sim.duration_s / train.period_s + 1e-9))
+    gate = t < n_chirps * train.period_s  # no partial chirps: the rest of the record is zero
+    t_lo, t_sig = t - bud.ref_delay_s, t - bud.delay_s
+    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
+    a_sig = mzm_field(bias + train.voltage(t_sig), vpi)
+    s_sig = config.laser.power_w * bud.tx_gain * bud.h       # |E_s|^2 scale: mean = Psig
+    shape = (batch, k_avg, n)
+    resp = responsivities(config, bud.nu_hz)
+    rx = sysc.receiver
+    mode = sysc.coherent_mode if rx == "coherent" else "direct"
+    flags = detection_flags(config, bud)
+
+    # Laser phase noise (only drawn when the laser has a linewidth).
+    lw = config.laser.linewidth_hz
+    th_lo, th_sig = wiener_phase([t_lo, t_sig], lw, rng, batch * k_avg)
+    th_lo, th_sig = th_lo.reshape(shape), th_sig.reshape(shape)
+    # Static carrier phase of the signal relative to the LO.
+    cp = config.channel.carrier_phase
+    if cp == "random":
+        psi = rng.uniform(0.0, 2 * np.pi, (batch, k_avg, 1))
+    elif cp == "propagation":
+        psi = np.full((batch, k_avg, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+    else:
+        psi = np.full((batch, k_avg, 1), optimal_phase(mode))
+    e_sig = np.sqrt(s_sig) * a_sig * np.exp(1j * (th_sig + psi))
+    if bud.ase_psd_w_per_hz > 0:
+        sigma = np.sqrt(bud.ase_psd_w_per_hz * fs * bud.h / 2.0)
+        e_sig = e_sig + sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+
+    load = None
+    transfer = None
+    extra = {}
+    if mode in ("homodyne", "phase_diversity"):
+        a_lo = mzm_field(bias + train.voltage(t_lo), vpi)
+        s_lo = config.balanced.lo_power_w / bud.mzm_mean_transmission
+        e_lo = np.sqrt(s_lo) * a_lo * np.exp(1j * th_lo)
+        S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
+        p1 = np.abs(S[0, 0] * e_lo + S[0, 1] * e_sig) ** 2
+        p2 = np.abs(S[1, 0] * e_lo + S[1, 1] * e_sig) ** 2
+        b = config.balanced
+        dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
+        i1, i2 = resp["balanced_1"] * p1, resp["balanced_2"] * p2
+        mean_p = [np.mean(p1), np.mean(p2)]
+        # The RF amplifier saturates on what balancing leaves: the differential optical power.
+        diff_peak = float(np.max(np.abs(i1 - i2))) / (0.5 * (resp["balanced_1"] + resp["balanced_2"]))
+        if mode == "homodyne" and diff_peak > b.saturation_power_w:
+            flags.append("saturation")
+            warnings.warn(f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
+                          f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
+                          stacklevel=2)
+        noise_any = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p)
+        circuit = noise_any.thermal + noise_any.amplifier
+        load, z = b.output_impedance_ohm, b.transimpedance_ohm
+        transfer = single_pole(b.bandwidth_hz)
+        if mode == "homodyne":
+            i = (i1 - i2 + _shot(rng, i1, dark, fs) - _shot(rng, i2, dark, fs)
+                 + _white(rng, shape, circuit, fs))
+            records = {"main": z * i * gate}
+            noise = noise_any
+        else:
+            arms = []
+            for idx, ik in enumerate((i1, i2)):
+                nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=idx)
+                arms.append(z * (ik + _shot(rng, ik, dark, fs)
+                                 + _white(rng, shape, nz.thermal + nz.amplifier, fs)) * gate)
+            records = {"arm1": arms[0], "arm2": arms[1]}
+            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
+    elif mode == "heterodyne":
+        records, noise, load = _heterodyne(config, bud, rng, e_sig, t, shape, resp, gate, th_sig, psi)
+    else:
+        records, noise, load = _direct(config, bud, rng, e_sig, t, shape, resp, gate)
+
+    kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
+              peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
+              noise_guard_hz=proc.noise_guard_hz, transfer=transfer)
+    if sysc.modulation == "pn_code":
+        result = _pn_correlate(records["main"], train, t_lo, fs, load, proc)
+    elif "main" in records:
+        result = analyze_records(records["main"], fs, load, averaging=proc.averaging,
+                                 keep_spectrum=keep_spectrum, **kw)
+    else:
+        r1 = analyze_records(records["arm1"], fs, load, averaging=proc.averaging, **kw)
+        r2 = analyze_records(records["arm2"], fs, load, averaging=proc.averaging, **kw)
+        both = np.concatenate([records["arm1"], records["arm2"]], axis=1) if proc.averaging == "power" \
+            else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
+        kwc = dict(kw, noise_span_hz=proc.noise_span_hz)
+        result = analyze_records(both, fs, load, averaging="power", keep_spectrum=keep_spectrum, **kwc)
+        # Summed arm powers (thesis Fig. 5.13): both the tone and the noise double.
+        extra = {"arm1_Crx_w": r1.peak_power_w, "arm2_Crx_w": r2.peak_power_w,
+                 "arm1_snr": r1.snr, "arm2_snr": r2.snr}
+        result = result.__class__(**{**result.__dict__,
+                                     "peak_power_w": 2 * result.peak_power_w,
+                                     "noise_psd_w_per_hz": 2 * result.noise_psd_w_per_hz})
+    if sysc.modulation == "pn_code":
+        return assemble_outputs(config, bud, result, noise, flags, tier="rf", lag_s=result.f_peak_hz,
+                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz)
+    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="rf")
+
+
+def _direct(config, bud: Budget, rng, e_sig, t, shape, resp, gate):
+    """PIN or APD direct detection followed by RF dechirp mixing (thesis Fig. 5.4)."""
+    fs = config.simulation.sample_rate_hz
+    p = np.abs(e_sig) ** 2
+    rx = config.system.receiver
+    if rx == "pin":
+        c = config.pin
+        i = resp["pin"] * p
+        noise = pin_noise(config, resp["pin"], bud.psig_w)
+        dark = c.solar_current_a + c.background_current_a + c.leakage_current_a
+        i_n = i + _shot(rng, i, dark, fs) + _white(rng, shape, noise.thermal + noise.amplifier, fs)
+    else:
+        a = config.apd
+        i = resp["apd"] * p
+        noise = apd_noise(config, resp["apd"], bud.psig_w)
+        # Multiplied shot noise with excess factor F, referred to the primary photocurrent.
+        var = ELEMENTARY_CHARGE_C * fs * (a.excess_noise_factor * (
+            i + a.solar_current_a + a.background_current_a) + a.leakage_current_a / a.gain**2)
+        i_n = i + rng.standard_normal(shape) * np.sqrt(var) + _white(
+            rng, shape, noise.thermal + noise.amplifier, fs)
+    v = noise.gain_ohm * _lowpass(i_n, noise.bandwidth_hz, fs)
+    if config.system.modulation == "pn_code":
+        return {"main": v * gate}, noise, noise.load_ohm
+    ref = bud.train.unit(t - bud.ref_delay_s)  # the generator's chirp, delayed (RF dechirp mixer)
+    return {"main": v * ref * gate}, noise, noise.load_ohm
+
+
+def _heterodyne(config, bud: Budget, rng, e_sig, t, shape, resp, gate, th_sig, psi):
+    """Heterodyne prototype (thesis Fig. 5.5): separate CW LO offset by f_LO, 3 dB coupler with one
+    arm capped (or both arms balanced), IF band-pass, envelope or synchronous demodulation, RF
+    dechirp mixing."""
+    fs = config.simulation.sample_rate_hz
+    b, h = config.balanced, config.heterodyne
+    f_lo = b.lo_offset_hz
+    th_lo = wiener_phase([t], b.lo_linewidth_hz, rng, shape[0] * shape[1])[0].reshape(shape)
+    e_lo = np.sqrt(b.lo_power_w) * np.exp(1j * (2 * np.pi * f_lo * t + th_lo))
+    S = COUPLER_3DB * coupler_field_transmission(config)
+    p1 = np.abs(S[0, 0] * e_lo + S[0, 1] * e_sig) ** 2
+    r = resp["heterodyne"]
+    dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
+    if h.capped_arm:
+        i = r * p1
+        noise = balanced_noise(config, r, r, float(np.mean(p1)), 0.0, arm=0)
+        i_n = i + _shot(rng, i, dark, fs)
+    else:
+        p2 = np.abs(S[1, 0] * e_lo + S[1, 1] * e_sig) ** 2
+        i = r * (p1 - p2)
+        noise = balanced_noise(config, r, r, float(np.mean(p1)), float(np.mean(p2)))
+        i_n = i + _shot(rng, r * p1, dark, fs) - _shot(rng, r * p2, dark, fs)
+    i_n = i_n + _white(rng, shape, noise.thermal + noise.amplifier, fs)
+    # IF band-pass around f_LO and complex envelope (analytic signal shifted down by f_LO).
+    n = t.size
+    half = if_half_width_hz(config, bud)
+    X = scipy.fft.fft(i_n, axis=-1, workers=-1)
+    f = scipy.fft.fftfreq(n, 1.0 / fs)
+    keep = (f > max(f_lo - half, 0.0)) & (f < f_lo + half)
+    X = np.where(keep, 2.0 * X, 0.0)
+    z = scipy.fft.ifft(X, axis=-1, workers=-1) * np.exp(-2j * np.pi * f_lo * t)
+    if h.demodulation == "envelope":
+        base = np.abs(z)
+    else:
+        # Ideal coherent demodulation: the receiver knows the carrier phase (incl. phase noise).
+        d = z * np.exp(1j * (th_sig - th_lo + psi))
+        a_ref = mzm_field(config.modulator.bias_v + bud.train.voltage(t - bud.delay_s),
+                          config.modulator.v_pi_v)
+        rot = np.sum(d * a_ref, axis=-1, keepdims=True)
+        base = np.real(d * np.exp(-1j * np.angle(rot)))
+    ref = bud.train.unit(t - bud.ref_delay_s)
+    return {"main": noise.gain_ohm * base * ref * gate}, noise, noise.load_ohm
+
+
+def if_half_width_hz(config, bud: Budget) -> float:
+    """Half-width of the heterodyne IF band-pass: the chirp's top frequency plus 25 %."""
+    return 1.25 * bud.train.f_stop_hz
+
+
+def _pn_correlate(v, train, t_lo, fs, load, proc):
+    """PN ranging: circular cross-correlation of the detected code with the reference code."""
+    from .common import pn_peak
+
+    ref = train.unit(t_lo)
+    return pn_peak(v, ref, fs, load, proc)

@@ -1,0 +1,23 @@
+"""Matplotlib plots of simulation results (PNG files, Agg backend).
+
+Physics modules never import this package; the CLI and the demo import it lazily, only when they
+draw. Submodules:
+
+- :mod:`chirplidar.viz.spectrum`: the dechirped beat spectrum of one shot (thesis Fig. 5.2).
+- :mod:`chirplidar.viz.sensitivity`: sweep results and SNR-versus-power curves (thesis Fig. 5.7).
+"""
+
+from __future__ import annotations
+
+__all__ = ["plot_beat_spectrum", "plot_sweep", "plot_sensitivity"]
+
+
+def __getattr__(name: str):
+    # Lazy: importing chirplidar.viz does not import matplotlib until a plot function is used.
+    if name == "plot_beat_spectrum":
+        from .spectrum import plot_beat_spectrum
+        return plot_beat_spectrum
+    if name in ("plot_sweep", "plot_sensitivity"):
+        from . import sensitivity
+        return getattr(sensitivity, name)
+    raise AttributeError(f"module 'chirplidar.viz' has no attribute {name!r}")

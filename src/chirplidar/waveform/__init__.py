@@ -1,0 +1,17 @@
+"""Modulation waveforms (thesis FM_chirp.m): linear FM chirp trains and maximal-length PN codes.
+
+A waveform is evaluated analytically at any array of times, so delays are exact (t - tau), and the
+chirp phase is always taken from the time since that chirp's start (DESIGN.md numerical rules).
+"""
+
+from .chirp import ChirpTrain
+from .pn import PNTrain, mls
+
+__all__ = ["ChirpTrain", "PNTrain", "mls", "waveform_from_config"]
+
+
+def waveform_from_config(config):
+    """The drive waveform selected by ``system.modulation`` (thesis ``sys.MxMode``)."""
+    if config.system.modulation == "pn_code":
+        return PNTrain.from_config(config)
+    return ChirpTrain.from_config(config)

@@ -1,0 +1,214 @@
+"""Command line: shot, sweep, bench, demo (in-process through ``main``)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chirplidar.cli import _json_number, main
+from chirplidar.demo import load_measured, psig_at_snr, shot_noise_power_dbm, shot_noise_snr_db
+
+ROOT = Path(__file__).resolve().parents[1]
+MISSION = str(ROOT / "missions" / "thesis_bench.toml")
+# A short, slow-sampled record: rf shots in milliseconds.
+SMALL = ["--set", "sims.T=16e-6", "chrp.Tchp=16e-6", "sims.Fs=1.2e9", "chrp.F2=250e6"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def output_names() -> tuple[str, ...]:
+    from chirplidar.api import OUTPUT_NAMES
+    return tuple(OUTPUT_NAMES)
+
+
+def strict_json(text: str):
+    """json.loads that rejects NaN/Infinity (not JSON)."""
+    def bad(token):
+        raise ValueError(f"non-JSON constant {token}")
+    return json.loads(text, parse_constant=bad)
+
+
+def is_png(path: Path) -> bool:
+    return path.is_file() and path.stat().st_size > 1000 and path.read_bytes()[:8] == PNG_MAGIC
+
+
+# ------------------------------------------------------------------------------------------ shot
+
+def test_shot_json_has_exactly_table_4_10_keys(capsys):
+    assert main(["shot", MISSION, "--json", "--tier", "link", "--seed", "3"]) == 0
+    rec = strict_json(capsys.readouterr().out)
+    assert set(rec) == set(output_names()) | {"flags", "tier", "f_beat_hz"}
+    assert list(rec)[:16] == list(output_names())           # Table 4.10 order
+    assert rec["tier"] == "link"
+    assert isinstance(rec["flags"], list)
+    for name in output_names():
+        assert rec[name] is None or isinstance(rec[name], float)
+
+
+def test_shot_rf_json_and_spectrum_plot(tmp_path, capsys):
+    png = tmp_path / "spec.png"
+    assert main(["shot", MISSION, *SMALL, "--json", "--seed", "1", "--plot", str(png)]) == 0
+    rec = strict_json(capsys.readouterr().out)
+    assert rec["tier"] == "rf"
+    assert set(rec) == set(output_names()) | {"flags", "tier", "f_beat_hz"}
+    assert is_png(png)
+
+
+def test_shot_table_output(capsys):
+    assert main(["shot", MISSION, "--tier", "link", "--set", "atm.Pattn=40"]) == 0
+    out = capsys.readouterr().out
+    for name in output_names():
+        assert name in out
+    assert "dBm" in out and "flags" in out
+
+
+def test_shot_plot_on_link_tier_is_refused(tmp_path, capsys):
+    png = tmp_path / "none.png"
+    code = main(["shot", MISSION, "--tier", "link", "--plot", str(png)])
+    assert code == 1
+    assert "spectrum" in capsys.readouterr().err
+    assert not png.exists()
+
+
+def test_mission_may_follow_set(capsys):
+    assert main(["shot", "--set", "atm.Pattn=20", "sys.rsel=PIN", MISSION, "--tier", "link",
+                 "--json"]) == 0
+    assert "SNR" in strict_json(capsys.readouterr().out)
+
+
+def test_unknown_set_key_exits_2_with_suggestion(capsys):
+    assert main(["shot", MISSION, "--tier", "link", "--set", "chrp.F3=300e6"]) == 2
+    err = capsys.readouterr().err
+    assert "chrp.F3" in err and "chrp.F2" in err
+    assert "Traceback" not in err
+
+
+def test_missing_mission_file_exits_2(tmp_path, capsys):
+    missing = tmp_path / "nope.toml"
+    assert main(["shot", str(missing), "--tier", "link"]) == 2
+    assert "nope.toml" in capsys.readouterr().err
+
+
+def test_bad_option_exits_2(capsys):
+    assert main(["shot", MISSION, "--tier", "warp"]) == 2
+    assert main(["shot"]) == 2
+    assert main(["--help"]) == 0
+
+
+def test_json_number_null_for_non_finite():
+    assert _json_number(-math.inf) is None
+    assert _json_number(math.nan) is None
+    assert _json_number(np.float64(-3.5)) == -3.5
+    assert _json_number(4) == 4
+
+
+# ----------------------------------------------------------------------------------------- sweep
+
+def test_sweep_json_one_object_per_x_and_repeat(capsys):
+    code = main(["sweep", MISSION, "--vary", "atm.Pattn", "--start", "20", "--stop", "80",
+                 "--n", "3", "--repeat", "2", "--tier", "link", "--seed", "5", "--json",
+                 "--no-progress"])
+    assert code == 0
+    recs = strict_json(capsys.readouterr().out)
+    assert isinstance(recs, list) and len(recs) == 6
+    for rec in recs:
+        assert "x" in rec
+        assert set(output_names()) <= set(rec)
+    assert sorted({r["x"] for r in recs}) == pytest.approx([20.0, 50.0, 80.0])
+
+
+def test_sweep_plot_with_thesis_output_names(tmp_path, capsys):
+    png = tmp_path / "sweep.png"
+    code = main(["sweep", MISSION, "--vary", "atm.Pattn", "--start", "20", "--stop", "100",
+                 "--n", "4", "--tier", "link", "--plot", str(png), "--x", "outputs.Psig",
+                 "--y", "outputs.CNR"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "atm.Pattn" in out
+    assert is_png(png)
+
+
+def test_sweep_unknown_output_name_lists_valid_names(capsys):
+    code = main(["sweep", MISSION, "--vary", "atm.Pattn", "--start", "20", "--stop", "80",
+                 "--n", "2", "--tier", "link", "--y", "outputs.SNRR"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "SNRR" in err and "Psig" in err and "d_rx" in err
+
+
+def test_sweep_bad_vary_key_or_range_exits_2(capsys):
+    base = ["sweep", MISSION, "--start", "20", "--stop", "80", "--n", "2", "--tier", "link"]
+    assert main([*base, "--vary", "chrp.F3"]) == 2
+    err = capsys.readouterr().err
+    assert "chrp.F3" in err and "chrp.F2" in err and "Traceback" not in err
+    assert main([*base, "--vary", "atm.Pattn", "--scale", "log", "--start", "-1"]) == 2
+    assert "log" in capsys.readouterr().err
+
+
+def test_sweep_plot_against_varied_key(tmp_path, capsys):
+    png = tmp_path / "vs_x.png"
+    assert main(["sweep", MISSION, "--vary", "atm.Pattn", "--start", "10", "--stop", "100",
+                 "--n", "3", "--scale", "log", "--tier", "link", "--x", "atm.Pattn",
+                 "--y", "d_rx", "--plot", str(png), "--no-progress"]) == 0
+    assert is_png(png)
+
+
+# ------------------------------------------------------------------------------------ bench/demo
+
+def test_bench_json_keys_positive(capsys):
+    assert main(["bench", "--what", "shot", "--json", "--repeats", "1"]) == 0
+    rec = strict_json(capsys.readouterr().out)
+    assert set(rec) == {"rf_shot_s", "fft_s", "ratio"}
+    assert all(v > 0 for v in rec.values())
+
+
+def test_demo_link_writes_png_and_csv(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--tier", "link", "--out", str(out), "--points", "5",
+                 "--no-progress"]) == 0
+    summary = capsys.readouterr().out
+    for det in ("homodyne", "direct", "heterodyne"):
+        assert det in summary
+    assert is_png(out / "fig5_7_sensitivity.png")
+    lines = [ln for ln in (out / "fig5_7_sensitivity.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    rows = list(csv.DictReader(lines))
+    assert len(rows) == 15
+    assert {r["detection"] for r in rows} == {"homodyne", "direct", "heterodyne"}
+    assert set(output_names()) <= set(rows[0])
+
+
+def test_measured_tables_load():
+    data = load_measured()
+    assert {k: len(v[0]) for k, v in data.items()} == {"direct": 10, "heterodyne": 15,
+                                                       "homodyne": 19}
+
+
+def test_shot_noise_limit_eq_2_6_2():
+    # eta P / (2 h nu B) = 10 at P = 10 * 2 h nu B / eta; h nu at 1.31 um = 1.5164e-19 J.
+    p_w = 10 * 2 * 6.62607015e-34 * 299792458.0 / 1.31e-6 * 30e3 / 0.85
+    assert shot_noise_snr_db(10 * math.log10(p_w) + 30) == pytest.approx(10.0, abs=1e-9)
+    assert shot_noise_power_dbm(10.0) == pytest.approx(10 * math.log10(p_w) + 30)
+
+
+def test_psig_at_snr_interpolates_first_crossing():
+    p = np.array([-40.0, -50.0, -60.0, -70.0])
+    snr = np.array([30.0, 20.0, 5.0, 12.0])            # noisy tail crosses back above
+    value, note = psig_at_snr(p[::-1], snr[::-1])       # order does not matter
+    assert value == pytest.approx(-50.0 - 10.0 * 10.0 / 15.0) and note == ""
+    assert math.isnan(psig_at_snr(p, snr + 100)[0])
+    assert math.isnan(psig_at_snr(p, snr - 100)[0])
+    assert psig_at_snr(p, np.array([30.0, 20.0, -math.inf, -math.inf]))[0] == -50.0
+
+
+def test_console_script_help():
+    res = subprocess.run([sys.executable, "-m", "chirplidar.cli", "--help"], capture_output=True,
+                         text=True, check=False)
+    assert res.returncode == 0
+    assert "shot" in res.stdout and "null" in res.stdout
