@@ -50,7 +50,9 @@ def test_tone_calibration_and_scalloping():
     f0 = 8090.5 * fs / n  # half a bin off the FFT grid (about 123.45 MHz)
     v = amp * np.cos(2 * np.pi * f0 * t)
     res = _analyze(v, fs, r)
-    assert abs(10 * np.log10(res.peak_power_w[0] / (amp**2 / (2 * r)))) < 0.01
+    # Tolerance: the +-48-bin Dirichlet sum omits a tail of ~2/(pi^2 48) = 0.4 % in amplitude for
+    # an untapered tone half a bin off the grid (0.04 dB); tapered beats lose less.
+    assert abs(10 * np.log10(res.peak_power_w[0] / (amp**2 / (2 * r)))) < 0.05
     assert abs(res.f_peak_hz[0] - f0) < 0.005 * fs / n
     # The plain argmax (thesis FFT_peak.m) loses the rectangular-window scalloping at half a bin:
     # 20 log10(pi/2) = 3.92 dB (closed form, sinc(1/2) = 2/pi).

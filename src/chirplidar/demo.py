@@ -38,12 +38,15 @@ class Detection:
     table: str
 
 
+# Run on missions/thesis_ch5_bench.toml (the measured hardware). The homodyne modulator sits at
+# its null (Sec. 3.1, set in the mission); the direct and heterodyne prototypes need power
+# modulation at the chirp frequency, i.e. the linear-power bias V_pi / 2 (Fig. 2.10 left).
+DEMO_MISSION = "thesis_ch5_bench.toml"
+
 DETECTIONS: tuple[Detection, ...] = (
-    Detection("homodyne", (), (-40.0, -105.0), -96.0, "5.4"),
-    Detection("direct", ("sys.rsel=PIN",), (-20.0, -50.0), -40.0, "5.2"),
-    # The heterodyne IF (COH.f_LO = 1 GHz) plus the doubled chirp (2 x F2 = 600 MHz) reaches
-    # 1.6 GHz, above the Nyquist frequency of the bench's sims.Fs = 3 GHz; 4 GHz holds it.
-    Detection("heterodyne", ("sys.CxMode=het", "sims.Fs=4e9"), (-35.0, -80.0), -70.0, "5.3"),
+    Detection("homodyne", (), (-40.0, -110.0), -96.0, "5.4"),
+    Detection("direct", ("sys.rsel=PIN", "mzm.Vdc=1.0"), (-15.0, -50.0), -40.0, "5.2"),
+    Detection("heterodyne", ("sys.CxMode=het", "mzm.Vdc=1.0"), (-25.0, -80.0), -70.0, "5.3"),
 )
 
 
@@ -163,7 +166,7 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
     if points < 2:
         raise ValueError(f"points must be >= 2, got {points}")
     t0 = time.perf_counter()
-    mission = Path(mission) if mission is not None else default_mission_path()
+    mission = Path(mission) if mission is not None else default_mission_path(DEMO_MISSION)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []

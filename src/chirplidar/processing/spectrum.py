@@ -25,8 +25,8 @@ import scipy.fft
 # Neighbouring bins used by the Dirichlet interpolation; truncation error ~ 1/(pi^2 L) of the
 # noise level, far below the scatter of a single periodogram bin.
 _KERNEL_HALF_WIDTH = 48
-_FINE_STEP = 1.0 / 32.0      # fine-grid step for the peak, in native bins
-_THREEDB_SPAN = 8.0          # +- native bins searched for the 3 dB points on the fine grid
+_FINE_STEP = 1.0 / 16.0      # fine-grid step, in native bins (then parabolic refinement)
+_THREEDB_SPAN = 4.0          # +- native bins searched for the 3 dB points on the fine grid
 
 
 @dataclass(frozen=True)
@@ -103,7 +103,7 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
     X = scipy.fft.rfft(v, n=m, axis=-1, workers=-1)
     f = np.arange(X.shape[-1]) * (fs_hz / m)
     if transfer is not None:
-        X = X * transfer(f)
+        X = X * (transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f))
     # One-sided PSD in W/Hz (eqs. 2.6.3-2.6.4 made one-sided).
     psd = (2.0 / (n * fs_hz * load_ohm)) * np.mean(np.abs(X) ** 2, axis=1)
     df_native = fs_hz / n

@@ -6,6 +6,8 @@ Ilkg are listed in A/rtHz but enter as DC currents whose shot noise is 2 q I (eq
 as densities, PIN.Ibgd = 4 uA/rtHz would exceed every other noise source by 60 dB.
 """
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..units import BOLTZMANN_J_K, ELEMENTARY_CHARGE_C
@@ -26,6 +28,25 @@ def thermal_psd(temperature_k: float, resistance_ohm: float) -> float:
     return 4.0 * BOLTZMANN_J_K * temperature_k / resistance_ohm
 
 
-def single_pole(bandwidth_hz: float):
-    """First-order low-pass H(f) = 1 / (1 + j f / B) as a callable."""
-    return lambda f: 1.0 / (1.0 + 1j * np.asarray(f) / bandwidth_hz)
+class single_pole:
+    """First-order low-pass H(f) = 1 / (1 + j f / B).
+
+    Evaluated on an rfft grid (``n``, ``fs``) it is cached, since every shot of a run reuses it.
+    """
+
+    def __init__(self, bandwidth_hz: float):
+        self.bandwidth_hz = bandwidth_hz
+
+    def __call__(self, f):
+        return 1.0 / (1.0 + 1j * np.asarray(f) / self.bandwidth_hz)
+
+    def on_grid(self, n_fft: int, fs_hz: float) -> np.ndarray:
+        return _single_pole_grid(self.bandwidth_hz, n_fft, fs_hz)
+
+
+@lru_cache(maxsize=8)
+def _single_pole_grid(bandwidth_hz: float, n_fft: int, fs_hz: float) -> np.ndarray:
+    f = np.arange(n_fft // 2 + 1) * (fs_hz / n_fft)
+    h = 1.0 / (1.0 + 1j * f / bandwidth_hz)
+    h.setflags(write=False)
+    return h

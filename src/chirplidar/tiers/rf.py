@@ -17,6 +17,7 @@ import scipy.fft
 from ..processing import analyze_records
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
+from ..receiver.fields import Field, port_power
 from ..transmitter import mzm_field, wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import Budget, coupler_field_transmission, make_budget, responsivities
@@ -26,20 +27,19 @@ from .common import assemble_outputs, detection_flags, optimal_phase
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
     n = x.shape[-1]
     X = scipy.fft.rfft(x, axis=-1, workers=-1)
-    X *= single_pole(bandwidth_hz)(np.arange(X.shape[-1]) * fs_hz / n)
+    X *= single_pole(bandwidth_hz).on_grid(n, fs_hz)
     return scipy.fft.irfft(X, n=n, axis=-1, workers=-1)
 
 
-def _shot(rng, current_a: np.ndarray, dark_a: float, fs_hz: float) -> np.ndarray:
-    """Shot noise of a time-varying current: variance q (I(t) + I_dark) Fs per sample."""
-    var = ELEMENTARY_CHARGE_C * (np.maximum(current_a, 0.0) + dark_a) * fs_hz
+def _gaussian(rng, current_a: np.ndarray, dark_a: float, circuit_psd: float, fs_hz: float):
+    """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw.
+
+    Shot: one-sided PSD 2 q I(t), i.e. variance q (I(t) + I_dark) Fs per sample; circuit: one-sided
+    PSD S, variance S Fs / 2. Independent Gaussians, so their sum is one Gaussian. For a balanced
+    pair pass I1 + I2: the difference of two independent noises has the summed variance.
+    """
+    var = ELEMENTARY_CHARGE_C * fs_hz * (np.maximum(current_a, 0.0) + dark_a) + 0.5 * circuit_psd * fs_hz
     return rng.standard_normal(np.shape(var)) * np.sqrt(var)
-
-
-def _white(rng, shape, psd_one_sided: float, fs_hz: float) -> np.ndarray:
-    if psd_one_sided <= 0:
-        return np.zeros(shape)
-    return rng.standard_normal(shape) * np.sqrt(psd_one_sided * fs_hz / 2.0)
 
 
 def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
@@ -64,8 +64,10 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
 
     # Laser phase noise (only drawn when the laser has a linewidth).
     lw = config.laser.linewidth_hz
-    th_lo, th_sig = wiener_phase([t_lo, t_sig], lw, rng, batch * k_avg)
-    th_lo, th_sig = th_lo.reshape(shape), th_sig.reshape(shape)
+    if lw > 0:
+        th_lo, th_sig = (th.reshape(shape) for th in wiener_phase([t_lo, t_sig], lw, rng, batch * k_avg))
+    else:
+        th_lo = th_sig = np.zeros((batch, k_avg, 1))
     # Static carrier phase of the signal relative to the LO.
     cp = config.channel.carrier_phase
     if cp == "random":
@@ -74,10 +76,11 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         psi = np.full((batch, k_avg, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
     else:
         psi = np.full((batch, k_avg, 1), optimal_phase(mode))
-    e_sig = np.sqrt(s_sig) * a_sig * np.exp(1j * (th_sig + psi))
+    ase = None
     if bud.ase_psd_w_per_hz > 0:
         sigma = np.sqrt(bud.ase_psd_w_per_hz * fs * bud.h / 2.0)
-        e_sig = e_sig + sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+        ase = sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+    sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi, ase)
 
     load = None
     transfer = None
@@ -85,14 +88,14 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     if mode in ("homodyne", "phase_diversity"):
         a_lo = mzm_field(bias + train.voltage(t_lo), vpi)
         s_lo = config.balanced.lo_power_w / bud.mzm_mean_transmission
-        e_lo = np.sqrt(s_lo) * a_lo * np.exp(1j * th_lo)
+        lo = Field(np.sqrt(s_lo) * a_lo, th_lo)
         S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
-        p1 = np.abs(S[0, 0] * e_lo + S[0, 1] * e_sig) ** 2
-        p2 = np.abs(S[1, 0] * e_lo + S[1, 1] * e_sig) ** 2
+        p1 = port_power(S[0, 0], S[0, 1], lo, sig)
+        p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         b = config.balanced
         dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
         i1, i2 = resp["balanced_1"] * p1, resp["balanced_2"] * p2
-        mean_p = [np.mean(p1), np.mean(p2)]
+        mean_p = [float(np.mean(p1)), float(np.mean(p2))]
         # The RF amplifier saturates on what balancing leaves: the differential optical power.
         diff_peak = float(np.max(np.abs(i1 - i2))) / (0.5 * (resp["balanced_1"] + resp["balanced_2"]))
         if mode == "homodyne" and diff_peak > b.saturation_power_w:
@@ -105,22 +108,22 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         load, z = b.output_impedance_ohm, b.transimpedance_ohm
         transfer = single_pole(b.bandwidth_hz)
         if mode == "homodyne":
-            i = (i1 - i2 + _shot(rng, i1, dark, fs) - _shot(rng, i2, dark, fs)
-                 + _white(rng, shape, circuit, fs))
+            # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
+            # one draw with the summed variance has the same distribution.
+            i = i1 - i2 + _gaussian(rng, i1 + i2, 2 * dark, circuit, fs)
             records = {"main": z * i * gate}
             noise = noise_any
         else:
             arms = []
             for idx, ik in enumerate((i1, i2)):
                 nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=idx)
-                arms.append(z * (ik + _shot(rng, ik, dark, fs)
-                                 + _white(rng, shape, nz.thermal + nz.amplifier, fs)) * gate)
+                arms.append(z * (ik + _gaussian(rng, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
             records = {"arm1": arms[0], "arm2": arms[1]}
             noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
     elif mode == "heterodyne":
-        records, noise, load = _heterodyne(config, bud, rng, e_sig, t, shape, resp, gate, th_sig, psi)
+        records, noise, load = _heterodyne(config, bud, rng, sig, t, shape, resp, gate, th_sig, psi)
     else:
-        records, noise, load = _direct(config, bud, rng, e_sig, t, shape, resp, gate)
+        records, noise, load = _direct(config, bud, rng, sig, t, shape, resp, gate)
 
     kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
               peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
@@ -149,26 +152,25 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="rf")
 
 
-def _direct(config, bud: Budget, rng, e_sig, t, shape, resp, gate):
+def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
     """PIN or APD direct detection followed by RF dechirp mixing (thesis Fig. 5.4)."""
     fs = config.simulation.sample_rate_hz
-    p = np.abs(e_sig) ** 2
+    p = np.broadcast_to(sig.power(), shape)
     rx = config.system.receiver
     if rx == "pin":
         c = config.pin
         i = resp["pin"] * p
         noise = pin_noise(config, resp["pin"], bud.psig_w)
         dark = c.solar_current_a + c.background_current_a + c.leakage_current_a
-        i_n = i + _shot(rng, i, dark, fs) + _white(rng, shape, noise.thermal + noise.amplifier, fs)
+        i_n = i + _gaussian(rng, i, dark, noise.thermal + noise.amplifier, fs)
     else:
         a = config.apd
         i = resp["apd"] * p
         noise = apd_noise(config, resp["apd"], bud.psig_w)
         # Multiplied shot noise with excess factor F, referred to the primary photocurrent.
-        var = ELEMENTARY_CHARGE_C * fs * (a.excess_noise_factor * (
-            i + a.solar_current_a + a.background_current_a) + a.leakage_current_a / a.gain**2)
-        i_n = i + rng.standard_normal(shape) * np.sqrt(var) + _white(
-            rng, shape, noise.thermal + noise.amplifier, fs)
+        f_ex = a.excess_noise_factor
+        i_n = i + _gaussian(rng, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
+                            + a.leakage_current_a / a.gain**2, noise.thermal + noise.amplifier, fs)
     v = noise.gain_ohm * _lowpass(i_n, noise.bandwidth_hz, fs)
     if config.system.modulation == "pn_code":
         return {"main": v * gate}, noise, noise.load_ohm
@@ -176,29 +178,29 @@ def _direct(config, bud: Budget, rng, e_sig, t, shape, resp, gate):
     return {"main": v * ref * gate}, noise, noise.load_ohm
 
 
-def _heterodyne(config, bud: Budget, rng, e_sig, t, shape, resp, gate, th_sig, psi):
+def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_sig, psi):
     """Heterodyne prototype (thesis Fig. 5.5): separate CW LO offset by f_LO, 3 dB coupler with one
     arm capped (or both arms balanced), IF band-pass, envelope or synchronous demodulation, RF
     dechirp mixing."""
     fs = config.simulation.sample_rate_hz
     b, h = config.balanced, config.heterodyne
     f_lo = b.lo_offset_hz
-    th_lo = wiener_phase([t], b.lo_linewidth_hz, rng, shape[0] * shape[1])[0].reshape(shape)
-    e_lo = np.sqrt(b.lo_power_w) * np.exp(1j * (2 * np.pi * f_lo * t + th_lo))
+    th_lo = (wiener_phase([t], b.lo_linewidth_hz, rng, shape[0] * shape[1])[0].reshape(shape)
+             if b.lo_linewidth_hz > 0 else np.zeros((shape[0], shape[1], 1)))
+    lo = Field(np.full(t.shape, np.sqrt(b.lo_power_w)), 2 * np.pi * f_lo * t + th_lo)
     S = COUPLER_3DB * coupler_field_transmission(config)
-    p1 = np.abs(S[0, 0] * e_lo + S[0, 1] * e_sig) ** 2
+    p1 = port_power(S[0, 0], S[0, 1], lo, sig)
     r = resp["heterodyne"]
     dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
     if h.capped_arm:
         i = r * p1
         noise = balanced_noise(config, r, r, float(np.mean(p1)), 0.0, arm=0)
-        i_n = i + _shot(rng, i, dark, fs)
+        i_n = i + _gaussian(rng, i, dark, noise.thermal + noise.amplifier, fs)
     else:
-        p2 = np.abs(S[1, 0] * e_lo + S[1, 1] * e_sig) ** 2
+        p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         i = r * (p1 - p2)
         noise = balanced_noise(config, r, r, float(np.mean(p1)), float(np.mean(p2)))
-        i_n = i + _shot(rng, r * p1, dark, fs) - _shot(rng, r * p2, dark, fs)
-    i_n = i_n + _white(rng, shape, noise.thermal + noise.amplifier, fs)
+        i_n = i + _gaussian(rng, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
     # IF band-pass around f_LO and complex envelope (analytic signal shifted down by f_LO).
     n = t.size
     half = if_half_width_hz(config, bud)
