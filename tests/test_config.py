@@ -66,3 +66,11 @@ def test_extends_overrides_key_by_key(tmp_path):
 def test_resolve_key():
     assert resolve_key("atm.Pattn") == "channel.extra_attenuation_db"
     assert resolve_key("channel.distance_m") == "channel.distance_m"
+
+
+def test_readme_mapping_table_matches_the_alias_table():
+    from conftest import ROOT
+
+    readme = (ROOT / "README.md").read_text()
+    for thesis, key, unit, table in THESIS_TABLE:
+        assert f"| `{thesis}` | `{key}` | {unit} | {table} |" in readme, thesis

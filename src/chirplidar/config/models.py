@@ -89,6 +89,10 @@ class Processing(_Model):
         "coherent", description="'coherent' averages the voltage records (the thesis's choice: "
         "SNR grows with the number of chirps while the phase is stable); 'power' averages spectra")
     highpass_hz: float = Field(ge=0, description="peak search minimum frequency (sys.f_highpass)")
+    peak_search_max_hz: float | None = Field(
+        None, gt=0, description="peak search maximum frequency; unset = Nyquist, except for phase "
+        "diversity where it is F1 + F0: each unbalanced hybrid arm also detects the LO's own power, "
+        "at DC and at or above the chirp's start frequency, which Appendix C band-passes out")
     rbw_hz: float = Field(gt=0, description="spectrum-analyzer resolution bandwidth (sys.BWres)")
     peak_method: Literal["bin", "parabolic", "dtft"] = Field(
         "dtft", description="'bin' = FFT argmax (thesis FFT_peak.m); 'parabolic' = 3-point "

@@ -84,7 +84,8 @@ def _crossing(x: np.ndarray, y: np.ndarray, level: float, start: int, step: int)
 def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
                     highpass_hz: float, zero_pad: int, peak_method: str, noise_span_hz: float,
                     noise_guard_hz: float, averaging: str = "coherent",
-                    transfer=None, keep_spectrum: bool = False) -> PeakResult:
+                    transfer=None, keep_spectrum: bool = False,
+                    search_max_hz: float | None = None) -> PeakResult:
     """Spectrum, peak, 3 dB points, noise level and SNR of voltage records.
 
     Parameters
@@ -108,14 +109,17 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
     psd = (2.0 / (n * fs_hz * load_ohm)) * np.mean(np.abs(X) ** 2, axis=1)
     df_native = fs_hz / n
     search = f >= highpass_hz
+    if search_max_hz is not None:
+        search &= f <= search_max_hz
     if not np.any(search):
-        raise ValueError("no FFT bin above processing.highpass_hz (sys.f_highpass)")
+        raise ValueError("no FFT bin between processing.highpass_hz (sys.f_highpass) and the peak "
+                         "search maximum")
     first = int(np.argmax(search))
 
     out = {k: np.empty(batch) for k in ("f", "p", "nz", "lo", "hi")}
     for b in range(batch):
         spec = psd[b]
-        kp = first + int(np.argmax(spec[first:]))
+        kp = int(np.argmax(np.where(search, spec, -np.inf)))
         f_pk, p_pk = f[kp], spec[kp]
         fine_nu = fine_p = None
         if peak_method == "parabolic" and 0 < kp < spec.size - 1:
@@ -127,7 +131,8 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
             # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
             k_nat = int(round(kp / zero_pad))
             nu = k_nat + np.arange(-_THREEDB_SPAN, _THREEDB_SPAN + _FINE_STEP / 2, _FINE_STEP)
-            nu = nu[(nu * df_native >= highpass_hz) & (nu <= n / 2)]
+            top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
+            nu = nu[(nu * df_native >= highpass_hz) & (nu <= top)]
             Pn = np.zeros(nu.size)
             for a in range(X.shape[1]):
                 Pn += np.abs(_dirichlet_dtft(X[b, a, ::zero_pad], k_nat, nu, n)) ** 2

@@ -43,6 +43,16 @@ def optimal_phase(mode: str) -> float:
     return 0.0
 
 
+def peak_search_max_hz(config, bud) -> float:
+    """Top of the peak search: ``processing.peak_search_max_hz``, else Nyquist; for phase diversity
+    the chirp's start frequency (the unbalanced arms' own LO terms lie at and above it)."""
+    if config.processing.peak_search_max_hz is not None:
+        return config.processing.peak_search_max_hz
+    if config.system.receiver == "coherent" and config.system.coherent_mode == "phase_diversity":
+        return bud.train.f_start_hz
+    return config.simulation.sample_rate_hz / 2
+
+
 def detection_flags(config, bud) -> list[str]:
     flags = []
     if bud.psig_w <= 0:
@@ -51,8 +61,7 @@ def detection_flags(config, bud) -> list[str]:
         rise, period = bud.train.rise_s, bud.train.period_s
         if bud.lag_s >= rise and period - bud.lag_s >= rise:
             flags.append("no_overlap")
-        f_top = config.simulation.sample_rate_hz / 2
-        if not (config.processing.highpass_hz <= bud.f_beat_hz <= f_top):
+        if not (config.processing.highpass_hz <= bud.f_beat_hz <= peak_search_max_hz(config, bud)):
             flags.append("beat_out_of_band")
     return flags
 

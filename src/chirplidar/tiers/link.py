@@ -97,24 +97,23 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                 arm_tone.append(tone_k)
                 arm_snr.append(tone_k / (nz.total * proc.rbw_hz))
             noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
-            n_comb = sum(balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p,
-                                        arm=a).total for a in (0, 1))
+            # Summed arms, as the rf tier sums their spectra (thesis Fig. 5.13).
+            noise_psd = sum(balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p,
+                                           arm=a).total for a in (0, 1))
             tone = sum(arm_tone)
-            snr = tone / (n_comb * proc.rbw_hz)
-            extra = {"arm1_Crx_w": np.full(batch, arm_tone[0] * h2 * noise.gain_ohm**2 / noise.load_ohm),
-                     "arm2_Crx_w": np.full(batch, arm_tone[1] * h2 * noise.gain_ohm**2 / noise.load_ohm),
+            snr = tone / (noise_psd * proc.rbw_hz)
+            to_out = h2 * noise.gain_ohm**2 / noise.load_ohm
+            extra = {"arm1_Crx_w": np.full(batch, arm_tone[0] * to_out),
+                     "arm2_Crx_w": np.full(batch, arm_tone[1] * to_out),
                      "arm1_snr": np.full(batch, arm_snr[0]), "arm2_snr": np.full(batch, arm_snr[1])}
-            noise_total = n_comb / 2  # per-arm average, as the rf tier's summed spectra read it
-        noise_psd = (noise.total if mode == "homodyne" else noise_total)
-        tone_out = tone * (1.0 if mode == "homodyne" else 1.0)
-    elif mode == "heterodyne":
-        tone, noise, snr, noise_psd = _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp)
-        h2 = 1.0
-        tone_out = tone
+        if mode == "homodyne":
+            noise_psd = noise.total
     else:
-        tone, noise, snr, noise_psd = _direct_link(config, bud, train, t, gate, w_sig, s_sig, resp)
+        # Direct and heterodyne chains filter before their nonlinearity or mixer: the detector
+        # response is inside these closed forms, not applied at the beat frequency.
         h2 = 1.0
-        tone_out = tone
+        chain = _heterodyne_link if mode == "heterodyne" else _direct_link
+        tone, noise, snr, noise_psd = chain(config, bud, train, t, gate, w_sig, s_sig, resp)
     if config.processing.averaging == "coherent" and cp != "random" and config.laser.linewidth_hz == 0:
         snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
     out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
@@ -124,7 +123,7 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     sigma_f = np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * t_ov)
     f_meas = f_b + sigma_f * rng.standard_normal(batch)
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
-    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.full(batch, tone_out * out_scale),
+    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.full(batch, tone * out_scale),
                         noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
                         f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
                         snr=np.full(batch, float(snr)))
@@ -175,11 +174,11 @@ def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
     mean_p1 = 0.5 * loss * (b.lo_power_w + bud.psig_w)
     noise = balanced_noise(config, r, r, mean_p1, mean_p1 if arms == 2 else 0.0,
                            arm=0 if arms == 1 else None)
+    alpha = 0.5 * np.pi * (bias + train.dc_v) / vpi
+    beta = 0.5 * np.pi * train.amplitude_v / vpi
     if h.demodulation == "envelope":
         # Fundamental of |cos(alpha + beta w sin phi)| over phi, per envelope value.
         phi = np.linspace(0, 2 * np.pi, 256, endpoint=False)
-        alpha = 0.5 * np.pi * (bias + train.dc_v) / vpi
-        beta = 0.5 * np.pi * train.amplitude_v / vpi
         wg = np.linspace(0, 1, 65)
         fund = np.array([abs(2 * np.mean(np.abs(np.cos(alpha + beta * w * np.sin(phi))) * np.sin(phi)))
                          for w in wg])
@@ -197,8 +196,8 @@ def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
     if h.demodulation == "envelope":
         from .rf import if_half_width_hz
 
-        mean_a2 = 0.5 * (1 + np.cos(2 * np.arcsin(0) + np.pi * (bias + train.dc_v) / vpi)
-                         * np.mean(j0(2 * 0.5 * np.pi * train.amplitude_v / vpi * w_sig)))
+        # <a^2> over the record: (1 + cos(2 alpha) J0(2 beta w)) / 2 (Jacobi-Anger).
+        mean_a2 = 0.5 * (1 + np.cos(2 * alpha) * np.mean(j0(2 * beta * w_sig)))
         if_power = 0.5 * base**2 * mean_a2
         rho = if_power / (noise.total * 2 * if_half_width_hz(config, bud))
         snr *= rho / (rho + 0.5)

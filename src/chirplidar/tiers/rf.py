@@ -21,7 +21,7 @@ from ..receiver.fields import Field, port_power
 from ..transmitter import mzm_field, wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import Budget, coupler_field_transmission, make_budget, responsivities
-from .common import assemble_outputs, detection_flags, optimal_phase
+from .common import assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
@@ -127,7 +127,8 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
 
     kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
               peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
-              noise_guard_hz=proc.noise_guard_hz, transfer=transfer)
+              noise_guard_hz=proc.noise_guard_hz, transfer=transfer,
+              search_max_hz=peak_search_max_hz(config, bud))
     if sysc.modulation == "pn_code":
         result = _pn_correlate(records["main"], train, t_lo, fs, load, proc)
     elif "main" in records:
