@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-slow bench clean
+.PHONY: install demo test bench clean
 
 install: $(STAMP)
 
@@ -19,9 +19,6 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q
-
-test-slow: install
-	$(BIN)/python -m pytest -q -m slow
 
 bench: install
 	$(BIN)/chirplidar bench --what shot

@@ -211,3 +211,57 @@ def test_laser_linewidth_coherence_link_matches_rf():
     full = simulate_shot(load_mission(CH5, [f"atm.Pattn={_pattn_for([], -80)}"]), tier="link")["SNR"]
     assert full - link > 1.5  # 20 kHz over a 4.4 us lag costs coherence
     assert abs(rf - link) < 1.0
+
+
+def test_several_chirps_per_record_and_no_partial_chirp():
+    # Tchp = 20 us in a 64 us record: three whole chirps, the last 4 us left empty (Table 4.3).
+    from chirplidar.waveform import ChirpTrain
+
+    cfg = load_mission(BENCH, ["chrp.Tchp=20e-6", "atm.dst=300"])
+    train = ChirpTrain.from_config(cfg)
+    t = np.arange(cfg.n_samples) / cfg.simulation.sample_rate_hz
+    gate = train.record_gate(t, cfg.simulation.duration_s)
+    assert abs(t[gate][-1] - 60e-6) < 1e-9 and not gate[t >= 60e-6].any()
+    # Three chirps beat coherently: the peak is still at kappa * lag (eq. 2.3.1).
+    r = simulate_shot(cfg, seed=1)
+    kappa = 200e6 / (0.625 * 20e-6)
+    assert abs(r["f_beat_hz"] - kappa * 2 * 300 * 1.46 / SPEED_OF_LIGHT_M_S) < 2e4
+    assert abs(r["d_error"]) < 0.05
+
+
+def test_fmaxopt_reference_delay():
+    # sys.fmaxopt: the reference is delayed until the beat equals fmaxopt; d_offset is that delay
+    # in range and d_rx still finds the target (thesis Table 4.2 note).
+    cfg = load_mission(BENCH, ["atm.dst=5000", "sys.fmaxopt=20e6"])
+    r = simulate_shot(cfg, seed=1)
+    assert abs(r["f_beat_hz"] - 20e6) < 1e4
+    tau = 2 * 5000 * 1.46 / SPEED_OF_LIGHT_M_S
+    kappa = 200e6 / 40e-6
+    assert abs(r["d_offset"] - SPEED_OF_LIGHT_M_S * (tau - 20e6 / kappa) / (2 * 1.46)) < 1e-6
+    assert abs(r["d_error"]) < 0.05
+
+
+def test_coherent_averaging_gains_the_number_of_chirps():
+    # sys.avg = 4 with a stable phase: signal adds in amplitude, noise in power -> +6.0 dB.
+    base = [f"atm.Pattn={_pattn_for([], -90)}"]
+    one = load_mission(CH5, base)
+    four = load_mission(CH5, base + ["sys.avg=4"])
+    gain = np.mean([simulate_shot(four, seed=s)["SNR"] - simulate_shot(one, seed=s)["SNR"]
+                    for s in range(4)])
+    assert abs(gain - 10 * np.log10(4)) < 1.0
+    assert abs(simulate_shot(four, tier="link")["SNR"] - simulate_shot(one, tier="link")["SNR"]
+               - 10 * np.log10(4)) < 1e-9
+
+
+def test_optical_amplifier_ase_beat_noise():
+    # ASE of PSD (F G - 1) h nu / 2 at the amplifier output beats with the LO: one-sided current PSD
+    # 4 R^2 P_LO S on an unattenuated bench. A negligible laser power isolates it (the ASE does not
+    # depend on the input here); rf and link must agree and the floor must rise above shot noise.
+    amp = ["transmitter.amplifier=true", "transmitter.amplifier_gain_db=30",
+           "transmitter.amplifier_noise_figure_db=6", "lsr.Po=1e-15", "atm.Pattn=0"]
+    cfg = load_mission(CH5, amp)
+    rf = np.mean([simulate_shot(cfg, seed=s)["Navg"] for s in range(3)])
+    link = simulate_shot(cfg, tier="link")["Navg"]
+    quiet = simulate_shot(load_mission(CH5, ["lsr.Po=1e-15", "atm.Pattn=0"]), tier="link")["Navg"]
+    assert abs(rf - link) < 1.0
+    assert link > quiet + 3.0

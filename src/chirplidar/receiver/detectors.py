@@ -21,10 +21,11 @@ class DetectorNoise:
     gain_ohm: float   # transimpedance: output volts per photocurrent ampere
     load_ohm: float   # load the output power is referred to
     bandwidth_hz: float
+    beat: float = 0.0  # A^2/Hz, optical-amplifier ASE beating with the LO or the signal
 
     @property
     def total(self) -> float:
-        return self.shot + self.thermal + self.amplifier
+        return self.shot + self.thermal + self.amplifier + self.beat
 
     def output_psd_w_per_hz(self, current_psd):
         return np.asarray(current_psd) * self.gain_ohm**2 / self.load_ohm

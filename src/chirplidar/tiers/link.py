@@ -11,6 +11,8 @@ overlap duration (Rife & Boorstyn 1974), so the link tier's d_rx has a realistic
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy.special import j0
 
@@ -49,8 +51,7 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     sim, proc = config.simulation, config.processing
     train = bud.train
     t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
-    n_chirps = int(np.floor(sim.duration_s / train.period_s + 1e-9))
-    gate = (t < n_chirps * train.period_s).astype(float)
+    gate = train.record_gate(t, sim.duration_s).astype(float)
     w_lo = train.envelope(np.mod(t - bud.ref_delay_s, train.period_s))
     w_sig = train.envelope(np.mod(t - bud.delay_s, train.period_s))
     bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
@@ -108,6 +109,15 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                      "arm1_snr": np.full(batch, arm_snr[0]), "arm2_snr": np.full(batch, arm_snr[1])}
         if mode == "homodyne":
             noise_psd = noise.total
+        if bud.ase_psd_w_per_hz > 0:
+            # Received ASE (two-sided PSD h S per complex envelope) beating with the LO through
+            # i1 - i2 = 2 R Im(E_LO n*): one-sided current PSD 4 R^2 <|E_LO|^2> h S.
+            r_mean = 0.5 * (resp["balanced_1"] + resp["balanced_2"])
+            beat = 4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz
+            if mode == "homodyne":
+                noise = dataclasses.replace(noise, beat=beat)
+                noise_psd = noise.total
+                snr = tone / (noise_psd * proc.rbw_hz)
     else:
         # Direct and heterodyne chains filter before their nonlinearity or mixer: the detector
         # response is inside these closed forms, not applied at the beat frequency.
@@ -147,6 +157,9 @@ def _direct_link(config, bud, train, t, gate, w_sig, s_sig, resp):
         r, noise = resp["pin"], pin_noise(config, resp["pin"], bud.psig_w)
     else:
         r, noise = resp["apd"], apd_noise(config, resp["apd"], bud.psig_w)
+    if bud.ase_psd_w_per_hz > 0:
+        # Signal-ASE beat: |E_s + n|^2 -> 2 Re(E_s n*), one-sided PSD 4 R^2 P_sig h S.
+        noise = dataclasses.replace(noise, beat=4 * r**2 * bud.psig_w * bud.h * bud.ase_psd_w_per_hz)
     p1 = mzm_power_fundamental(train, config.modulator.bias_v, config.modulator.v_pi_v, w_sig)
     mix, w_ref, h_sig = _mixer_noise_factor(train, t, gate, bud.f_beat_hz, noise.bandwidth_hz,
                                             bud.ref_delay_s)

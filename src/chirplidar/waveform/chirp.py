@@ -58,6 +58,12 @@ class ChirpTrain:
         t = np.asarray(t_s, dtype=float)
         return t - self.period_s * np.floor(t / self.period_s)
 
+    def record_gate(self, t_s: np.ndarray, duration_s: float) -> np.ndarray:
+        """True where a whole chirp of the record lies: chirps start at multiples of the period
+        and one that would not finish inside ``duration_s`` is not generated (Table 4.3, Tchp)."""
+        n_chirps = int(np.floor(duration_s / self.period_s + 1e-9))
+        return np.asarray(t_s) < n_chirps * self.period_s * (1.0 - 1e-12)
+
     def envelope(self, tc_s: np.ndarray) -> np.ndarray:
         """Amplitude window in [0, 1] at time-in-chirp ``tc_s``: rise, hold, fall (Tukey)."""
         tc = np.asarray(tc_s, dtype=float)

@@ -11,6 +11,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from .chirp import ChirpTrain
+
 # Feedback taps of primitive polynomials (Fibonacci LFSR), one per register length.
 # Source: Xilinx XAPP052 "Efficient Shift Registers, LFSR Counters, and Long Pseudo-Random
 # Sequence Generators", Table 3.
@@ -61,6 +63,8 @@ class PNTrain:
     @property
     def bandwidth_hz(self) -> float:
         return self.chip_rate_hz
+
+    record_gate = ChirpTrain.record_gate
 
     def envelope(self, tc_s: np.ndarray) -> np.ndarray:
         tc = np.asarray(tc_s, dtype=float)
