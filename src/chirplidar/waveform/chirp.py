@@ -14,8 +14,42 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def drive_levels(config) -> tuple[float, float]:
+    """(amplitude, dc) in volts at the modulator for a drive of ``chrp.Vpp`` and ``chrp.Vdc``.
+
+    Vpp is set for a matched load (signal-generator convention); the modulator's input impedance Ri
+    then sees 2 Ri / (Ro + Ri) of it.
+    """
+    wf, mzm = config.waveform, config.modulator
+    divider = 2.0 * mzm.input_impedance_ohm / (wf.output_impedance_ohm + mzm.input_impedance_ohm)
+    return 0.5 * wf.vpp_v * divider, wf.vdc_v * divider
+
+
+class PeriodicTrain:
+    """What every periodic drive shares: the record gate and a grid over one period."""
+
+    period_s: float
+    amplitude_v: float
+    dc_v: float
+
+    def voltage(self, t_s: np.ndarray) -> np.ndarray:
+        """Drive voltage at the modulator (V): dc + amplitude x the unit waveform."""
+        return self.dc_v + self.amplitude_v * self.unit(t_s)
+
+    def record_gate(self, t_s: np.ndarray, duration_s: float) -> np.ndarray:
+        """True where a whole chirp of the record lies: chirps start at multiples of the period
+        and one that would not finish inside ``duration_s`` is not generated (Table 4.3, Tchp)."""
+        n_chirps = int(np.floor(duration_s / self.period_s + 1e-9))
+        return np.asarray(t_s) < n_chirps * self.period_s * (1.0 - 1e-12)
+
+    def envelope_samples(self, n: int = 4096) -> np.ndarray:
+        """Envelope on a uniform grid over one period (for averages of slow functions of w)."""
+        tc = (np.arange(n) + 0.5) * (self.period_s / n)
+        return self.envelope(tc)
+
+
 @dataclass(frozen=True)
-class ChirpTrain:
+class ChirpTrain(PeriodicTrain):
     """Chirp timing and levels. Frequencies in Hz, times in s, voltages in V at the modulator."""
 
     period_s: float
@@ -29,10 +63,8 @@ class ChirpTrain:
 
     @classmethod
     def from_config(cls, config) -> "ChirpTrain":
-        wf, mzm = config.waveform, config.modulator
-        # Vpp is set for a matched load (signal-generator convention); the modulator's input
-        # impedance Ri then sees 2 Ri / (Ro + Ri) of it.
-        divider = 2.0 * mzm.input_impedance_ohm / (wf.output_impedance_ohm + mzm.input_impedance_ohm)
+        wf = config.waveform
+        amplitude_v, dc_v = drive_levels(config)
         return cls(
             period_s=wf.chirp_period_s,
             rise_s=wf.ramp_duty_cycle * wf.chirp_period_s,
@@ -40,8 +72,8 @@ class ChirpTrain:
             f_stop_hz=wf.f_stop_hz + wf.f_offset_hz,
             amplitude_duty_cycle=wf.amplitude_duty_cycle,
             hold_time_s=wf.hold_time_s,
-            amplitude_v=0.5 * wf.vpp_v * divider,
-            dc_v=wf.vdc_v * divider,
+            amplitude_v=amplitude_v,
+            dc_v=dc_v,
         )
 
     @property
@@ -57,12 +89,6 @@ class ChirpTrain:
         """Time since the start of the current chirp, in [0, period)."""
         t = np.asarray(t_s, dtype=float)
         return t - self.period_s * np.floor(t / self.period_s)
-
-    def record_gate(self, t_s: np.ndarray, duration_s: float) -> np.ndarray:
-        """True where a whole chirp of the record lies: chirps start at multiples of the period
-        and one that would not finish inside ``duration_s`` is not generated (Table 4.3, Tchp)."""
-        n_chirps = int(np.floor(duration_s / self.period_s + 1e-9))
-        return np.asarray(t_s) < n_chirps * self.period_s * (1.0 - 1e-12)
 
     def envelope(self, tc_s: np.ndarray) -> np.ndarray:
         """Amplitude window in [0, 1] at time-in-chirp ``tc_s``: rise, hold, fall (Tukey)."""
@@ -104,19 +130,3 @@ class ChirpTrain:
         tc = self.time_in_chirp(t_s)
         return self.envelope(tc) * np.sin(self.phase(tc))
 
-    def voltage(self, t_s: np.ndarray) -> np.ndarray:
-        """Drive voltage at the modulator (V)."""
-        return self.dc_v + self.amplitude_v * self.unit(t_s)
-
-    # Closed forms used by the link tier and by power normalisation.
-    def envelope_samples(self, n: int = 4096) -> np.ndarray:
-        """Envelope on a uniform grid over one period (for averages of slow functions of w)."""
-        tc = (np.arange(n) + 0.5) * (self.period_s / n)
-        return self.envelope(tc)
-
-    def mean_of(self, fn_of_envelope, n: int = 4096) -> float:
-        """Period average of a function of the instantaneous sinusoid amplitude.
-
-        ``fn_of_envelope(w)`` must already be averaged over the carrier phase (Bessel forms).
-        """
-        return float(np.mean(fn_of_envelope(self.envelope_samples(n))))

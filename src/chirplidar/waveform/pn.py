@@ -11,7 +11,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .chirp import ChirpTrain
+from .chirp import PeriodicTrain, drive_levels
 
 # Feedback taps of primitive polynomials (Fibonacci LFSR), one per register length.
 # Source: Xilinx XAPP052 "Efficient Shift Registers, LFSR Counters, and Long Pseudo-Random
@@ -44,7 +44,7 @@ def mls(order: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class PNTrain:
+class PNTrain(PeriodicTrain):
     period_s: float
     rise_s: float
     chip_rate_hz: float
@@ -54,17 +54,15 @@ class PNTrain:
 
     @classmethod
     def from_config(cls, config) -> "PNTrain":
-        wf, mzm = config.waveform, config.modulator
-        divider = 2.0 * mzm.input_impedance_ohm / (wf.output_impedance_ohm + mzm.input_impedance_ohm)
+        wf = config.waveform
+        amplitude_v, dc_v = drive_levels(config)
         return cls(period_s=wf.chirp_period_s, rise_s=wf.ramp_duty_cycle * wf.chirp_period_s,
                    chip_rate_hz=wf.pn_chip_rate_hz, order=wf.pn_order,
-                   amplitude_v=0.5 * wf.vpp_v * divider, dc_v=wf.vdc_v * divider)
+                   amplitude_v=amplitude_v, dc_v=dc_v)
 
     @property
     def bandwidth_hz(self) -> float:
         return self.chip_rate_hz
-
-    record_gate = ChirpTrain.record_gate
 
     def envelope(self, tc_s: np.ndarray) -> np.ndarray:
         tc = np.asarray(tc_s, dtype=float)
@@ -77,9 +75,3 @@ class PNTrain:
         idx = np.floor(tc * self.chip_rate_hz).astype(np.int64) % code.size
         return self.envelope(tc) * code[idx]
 
-    def voltage(self, t_s: np.ndarray) -> np.ndarray:
-        return self.dc_v + self.amplitude_v * self.unit(t_s)
-
-    def envelope_samples(self, n: int = 4096) -> np.ndarray:
-        tc = (np.arange(n) + 0.5) * (self.period_s / n)
-        return self.envelope(tc)
