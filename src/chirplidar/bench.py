@@ -58,24 +58,14 @@ def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = 
     """Time one shot of ``mission`` (default: missions/thesis_bench.toml, homodyne) against one FFT.
 
     Returns ``rf_shot_s`` (s per shot), ``fft_s`` (s per FFT of the same length), ``ratio``
-    (shot / FFT), the same per shot when ``BATCH`` shots run as one batch (``rf_shot_batched_s``,
-    ``ratio_batched``: how mission runs call the tier) and ``n_samples``. All are timed in this
-    call, so the ratios compare like with like on the machine at hand; absolute times are not
-    asserted anywhere.
+    (shot / FFT) and ``n_samples``. Both are timed in this call, so the ratio compares like with
+    like on the machine at hand; absolute times are not asserted anywhere.
     """
     from .api import simulate_shot
     from .config import load_mission
-    from .tiers import TIERS
 
     cfg = load_mission(mission if mission is not None else default_mission_path(), overrides or [])
     n = record_samples(cfg)
     shot_s = time_call(lambda: simulate_shot(cfg, seed=seed, tier=tier), repeats=repeats)
     fft_s = time_fft(n, repeats=max(repeats, 20), seed=seed)
-    run = TIERS[tier]
-    batched_s = time_call(lambda: run(cfg, np.random.default_rng(seed), batch=BATCH),
-                          repeats=max(1, repeats // 2)) / BATCH
-    return {"rf_shot_s": shot_s, "fft_s": fft_s, "ratio": shot_s / fft_s,
-            "rf_shot_batched_s": batched_s, "ratio_batched": batched_s / fft_s, "n_samples": n}
-
-
-BATCH = 16
+    return {"rf_shot_s": shot_s, "fft_s": fft_s, "ratio": shot_s / fft_s, "n_samples": n}

@@ -193,21 +193,18 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import BATCH, bench_shot
+    from .bench import bench_shot
 
     if args.repeats < 1:
         raise UsageError(f"--repeats must be >= 1, got {args.repeats}")
     res = bench_shot(args.mission, args.set or [], repeats=args.repeats)
     if args.json:
-        print(_dump_json({k: res[k] for k in ("rf_shot_s", "fft_s", "ratio", "rf_shot_batched_s",
-                                              "ratio_batched")}))
+        print(_dump_json({k: res[k] for k in ("rf_shot_s", "fft_s", "ratio")}))
     else:
         print(f"rf shot ({args.mission or 'missions/thesis_bench.toml'}): "
               f"{res['rf_shot_s'] * 1e3:.2f} ms")
         print(f"one rfft of N = {res['n_samples']} samples: {res['fft_s'] * 1e3:.3f} ms")
         print(f"ratio shot / FFT: {res['ratio']:.1f}  (median of {args.repeats}, after warm-up)")
-        print(f"in batches of {BATCH} shots: {res['rf_shot_batched_s'] * 1e3:.2f} ms per shot, "
-              f"ratio {res['ratio_batched']:.1f}")
     return 0
 
 
@@ -281,8 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
     p.add_argument("--repeats", type=int, default=5, help="timed runs; the median is reported")
-    p.add_argument("--json", action="store_true",
-                   help='print {"rf_shot_s", "fft_s", "ratio", "rf_shot_batched_s", "ratio_batched"}')
+    p.add_argument("--json", action="store_true", help='print {"rf_shot_s", "fft_s", "ratio"}')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")

@@ -18,6 +18,7 @@ evaluates the DTFT itself near the peak, exactly, by Dirichlet-kernel interpolat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft
@@ -43,21 +44,34 @@ class PeakResult:
     spectrum_w_per_hz: np.ndarray | None = None
 
 
-def _dirichlet_dtft(X: np.ndarray, k: int, nu: np.ndarray, n: int) -> np.ndarray:
-    """DTFT of a length-``n`` record at fractional native bins ``nu``, from its DFT ``X`` (native grid).
+# The fine grid is a fixed set of offsets from the peak bin, so the kernel K(offset - m) depends on
+# the record length only and is computed once per length.
+_OFFSETS = np.arange(-_THREEDB_SPAN, _THREEDB_SPAN + _FINE_STEP / 2, _FINE_STEP)
+_MREL = np.arange(-_KERNEL_HALF_WIDTH, _KERNEL_HALF_WIDTH + 1)
 
-    X(nu) = sum_m X_m K(nu - m), K(u) = exp(-j pi u (n-1)/n) sin(pi u) / (n sin(pi u / n)).
-    Only bins within _KERNEL_HALF_WIDTH of bin ``k`` are used.
-    """
-    lo = max(k - _KERNEL_HALF_WIDTH, 0)
-    hi = min(k + _KERNEL_HALF_WIDTH + 1, X.size)
-    m = np.arange(lo, hi)
-    u = nu[:, None] - m[None, :]
+
+@lru_cache(maxsize=8)
+def _dirichlet_kernel(n: int) -> np.ndarray:
+    """K(u) = exp(-j pi u (n-1)/n) sin(pi u) / (n sin(pi u / n)) at u = offset - m (rows, cols)."""
+    u = _OFFSETS[:, None] - _MREL[None, :]
     near = np.abs(u) < 1e-12
     u_safe = np.where(near, 1.0, u)
     kern = np.exp(-1j * np.pi * u_safe * (n - 1) / n) * np.sin(np.pi * u_safe) / (
         n * np.sin(np.pi * u_safe / n))
     kern = np.where(near, 1.0, kern)
+    kern.setflags(write=False)
+    return kern
+
+
+def _dirichlet_dtft(X: np.ndarray, k: int, rows: np.ndarray, n: int) -> np.ndarray:
+    """DTFT of a length-``n`` record at native bins ``k + _OFFSETS[rows]``, from its DFT ``X``.
+
+    X(nu) = sum_m X_m K(nu - m), over the bins within _KERNEL_HALF_WIDTH of bin ``k``.
+    """
+    lo = max(k - _KERNEL_HALF_WIDTH, 0)
+    hi = min(k + _KERNEL_HALF_WIDTH + 1, X.size)
+    first_col = lo - (k - _KERNEL_HALF_WIDTH)
+    kern = _dirichlet_kernel(n)[rows, first_col:first_col + (hi - lo)]
     return kern @ X[lo:hi]
 
 
@@ -91,8 +105,8 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
     Parameters
     ----------
     v : ndarray, shape (batch, averages, N), float64, volts across ``load_ohm``.
-    transfer : callable f_hz -> complex gain applied to the spectrum (detector response of a
-        linear chain), or None.
+    transfer : callable f_hz -> complex gain (detector response of a linear chain), or None. Only
+        its power gain |H(f)|^2 matters to the spectrum, so it is applied to the PSD.
     """
     v = np.asarray(v, dtype=float)
     if v.ndim != 3:
@@ -103,10 +117,12 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
         v = v.mean(axis=1, keepdims=True)
     X = scipy.fft.rfft(v, n=m, axis=-1, workers=-1)
     f = np.arange(X.shape[-1]) * (fs_hz / m)
-    if transfer is not None:
-        X = X * (transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f))
     # One-sided PSD in W/Hz (eqs. 2.6.3-2.6.4 made one-sided).
-    psd = (2.0 / (n * fs_hz * load_ohm)) * np.mean(np.abs(X) ** 2, axis=1)
+    power = X.real ** 2 + X.imag ** 2
+    psd = (2.0 / (n * fs_hz * load_ohm)) * (power[:, 0] if power.shape[1] == 1 else power.mean(axis=1))
+    if transfer is not None:
+        h = transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f)
+        psd *= h.real ** 2 + h.imag ** 2
     df_native = fs_hz / n
     search = f >= highpass_hz
     if search_max_hz is not None:
@@ -130,13 +146,16 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
         elif peak_method == "dtft":
             # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
             k_nat = int(round(kp / zero_pad))
-            nu = k_nat + np.arange(-_THREEDB_SPAN, _THREEDB_SPAN + _FINE_STEP / 2, _FINE_STEP)
             top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
-            nu = nu[(nu * df_native >= highpass_hz) & (nu <= top)]
+            nu = k_nat + _OFFSETS
+            rows = (nu * df_native >= highpass_hz) & (nu <= top)
+            nu = nu[rows]
             Pn = np.zeros(nu.size)
             for a in range(X.shape[1]):
-                Pn += np.abs(_dirichlet_dtft(X[b, a, ::zero_pad], k_nat, nu, n)) ** 2
+                Pn += np.abs(_dirichlet_dtft(X[b, a, ::zero_pad], k_nat, rows, n)) ** 2
             Pn *= 2.0 / (n * fs_hz * load_ohm * X.shape[1])
+            if transfer is not None:
+                Pn *= np.abs(transfer(nu * df_native)) ** 2
             i = int(np.argmax(Pn))
             if 0 < i < nu.size - 1:
                 lg = np.log(np.maximum(Pn[i - 1:i + 2], np.finfo(float).tiny))
@@ -160,11 +179,13 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
         out["lo"][b] = f[first] if lo is None else lo
         out["hi"][b] = f[-1] if hi is None else hi
         # Noise: mean PSD over the span beside the peak, guard bins excluded.
-        dist = np.abs(f - f_pk)
-        sel = (dist <= 0.5 * noise_span_hz) & (dist > noise_guard_hz) & search
-        if np.count_nonzero(sel) < 8:
-            sel = (dist > noise_guard_hz) & search
-        out["nz"][b] = float(np.mean(spec[sel]))
+        i0, i1 = np.searchsorted(f, (f_pk - 0.5 * noise_span_hz, f_pk + 0.5 * noise_span_hz + 1e-9))
+        dist = np.abs(f[i0:i1] - f_pk)
+        sel = (dist > noise_guard_hz) & search[i0:i1]
+        if np.count_nonzero(sel) >= 8:
+            out["nz"][b] = float(np.mean(spec[i0:i1][sel]))
+        else:
+            out["nz"][b] = float(np.mean(spec[(np.abs(f - f_pk) > noise_guard_hz) & search]))
         out["f"][b] = f_pk
         out["p"][b] = p_pk * df_native  # tone power, eq. 2.6.6 with df = 1/T
     noise_in_rbw = out["nz"] * rbw_hz

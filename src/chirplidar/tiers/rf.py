@@ -9,7 +9,9 @@ sampled. Records have shape (batch, averages, N): no Python loop over samples or
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft
@@ -17,7 +19,7 @@ import scipy.fft
 from ..processing import analyze_records
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
-from ..receiver.fields import Field, port_power
+from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..transmitter import mzm_field, wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import Budget, coupler_field_transmission, make_budget, responsivities
@@ -31,15 +33,38 @@ def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
     return scipy.fft.irfft(X, n=n, axis=-1, workers=-1)
 
 
-def _gaussian(rng, current_a: np.ndarray, dark_a: float, circuit_psd: float, fs_hz: float):
+def _gaussian(rng, shape, current_a: np.ndarray, dark_a: float, circuit_psd: float, fs_hz: float):
     """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw.
 
     Shot: one-sided PSD 2 q I(t), i.e. variance q (I(t) + I_dark) Fs per sample; circuit: one-sided
     PSD S, variance S Fs / 2. Independent Gaussians, so their sum is one Gaussian. For a balanced
-    pair pass I1 + I2: the difference of two independent noises has the summed variance.
+    pair pass I1 + I2: the difference of two independent noises has the summed variance. The draw
+    always has the full record shape (batch, averages, N), whatever the shape of the current:
+    every record gets its own noise. Unit normals are drawn in float32 (twice as fast; a noise
+    sample needs no 53-bit mantissa); the variance and the result are float64.
     """
     var = ELEMENTARY_CHARGE_C * fs_hz * (np.maximum(current_a, 0.0) + dark_a) + 0.5 * circuit_psd * fs_hz
-    return rng.standard_normal(np.shape(var)) * np.sqrt(var)
+    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(var)), dtype=np.float32)
+    return unit * np.sqrt(var)
+
+
+@lru_cache(maxsize=16)
+def _modulator_fields(train, bias_v: float, v_pi_v: float, n: int, fs_hz: float, duration_s: float,
+                      delay_s: float, ref_delay_s: float):
+    """Deterministic per instrument and geometry: the MZM field of the signal (delayed by tau) and of
+    the LO / reference (delayed by tau_ref) on the record grid, and the record gate. Cached because a
+    run or a sweep of attenuation, detector or seed reuses them shot after shot (read-only arrays)."""
+    t = np.arange(n) / fs_hz
+    a_sig = mzm_field(bias_v + train.voltage(t - delay_s), v_pi_v)
+    a_lo = mzm_field(bias_v + train.voltage(t - ref_delay_s), v_pi_v)
+    gate = train.record_gate(t, duration_s)
+    if gate.all():
+        gate = np.ones(1, dtype=bool)  # nothing to cut: multiplying by it is free
+    # The products the coupler outputs are made of (see receiver.fields.port_coefficients).
+    products = (a_lo * a_lo, a_sig * a_sig, a_lo * a_sig)
+    for arr in (t, a_sig, a_lo, gate, *products):
+        arr.setflags(write=False)
+    return t, a_sig, a_lo, gate, products
 
 
 def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
@@ -48,12 +73,12 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     bud = make_budget(config)
     sim, sysc, proc = config.simulation, config.system, config.processing
     fs, n, k_avg = sim.sample_rate_hz, config.n_samples, proc.averages
-    t = np.arange(n) / fs
     train = bud.train
-    gate = train.record_gate(t, sim.duration_s)  # no partial chirps: the rest of the record is zero
-    t_lo, t_sig = t - bud.ref_delay_s, t - bud.delay_s
     bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
-    a_sig = mzm_field(bias + train.voltage(t_sig), vpi)
+    # gate: no partial chirps, the rest of the record is zero.
+    t, a_sig, a_lo, gate, products = _modulator_fields(train, bias, vpi, n, fs, sim.duration_s,
+                                                       bud.delay_s, bud.ref_delay_s)
+    t_lo, t_sig = t - bud.ref_delay_s, t - bud.delay_s
     s_sig = config.laser.power_w * bud.tx_gain * bud.h       # |E_s|^2 scale: mean = Psig
     shape = (batch, k_avg, n)
     resp = responsivities(config, bud.nu_hz)
@@ -85,40 +110,54 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     transfer = None
     extra = {}
     if mode in ("homodyne", "phase_diversity"):
-        a_lo = mzm_field(bias + train.voltage(t_lo), vpi)
         s_lo = config.balanced.lo_power_w / bud.mzm_mean_transmission
-        lo = Field(np.sqrt(s_lo) * a_lo, th_lo)
         S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
-        p1 = port_power(S[0, 0], S[0, 1], lo, sig)
-        p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         b = config.balanced
         dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
-        i1, i2 = resp["balanced_1"] * p1, resp["balanced_2"] * p2
-        mean_p = [float(np.mean(p1)), float(np.mean(p2))]
+        r1, r2 = resp["balanced_1"], resp["balanced_2"]
+        if ase is None and lw == 0:
+            # Constant phase over each record: currents are fixed mixes of three cached arrays,
+            # and a balanced pair's LO and signal power terms cancel in the coefficients.
+            cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, -psi) for k in (0, 1)]
+            means = [float(np.mean(a)) for a in products]
+            mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
+                      for k in (0, 1)]
+            arm = [[r1 * c for c in cf[0]], [r2 * c for c in cf[1]]]
+            if mode == "homodyne":
+                diff = combine([x - y for x, y in zip(*arm)], products)
+                total = combine([x + y for x, y in zip(*arm)], products)
+            else:
+                i1, i2 = combine(arm[0], products), combine(arm[1], products)
+        else:
+            lo = Field(np.sqrt(s_lo) * a_lo, th_lo)
+            p1, p2 = (port_power(S[k, 0], S[k, 1], lo, sig) for k in (0, 1))
+            i1, i2 = r1 * p1, r2 * p2
+            diff, total = i1 - i2, i1 + i2
+            mean_p = [float(np.mean(p1)), float(np.mean(p2))]
         # The RF amplifier saturates on what balancing leaves: the differential optical power.
-        diff_peak = float(np.max(np.abs(i1 - i2))) / (0.5 * (resp["balanced_1"] + resp["balanced_2"]))
-        if mode == "homodyne" and diff_peak > b.saturation_power_w:
+        diff_peak = float(np.max(np.abs(diff))) / (0.5 * (r1 + r2)) if mode == "homodyne" else 0.0
+        if diff_peak > b.saturation_power_w:
             flags.append("saturation")
             warnings.warn(f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
                           f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
                           stacklevel=2)
-        noise_any = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p)
+        noise_any = balanced_noise(config, r1, r2, *mean_p)
         circuit = noise_any.thermal + noise_any.amplifier
         load, z = b.output_impedance_ohm, b.transimpedance_ohm
         transfer = single_pole(b.bandwidth_hz)
         if mode == "homodyne":
             # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
             # one draw with the summed variance has the same distribution.
-            i = i1 - i2 + _gaussian(rng, i1 + i2, 2 * dark, circuit, fs)
+            i = diff + _gaussian(rng, shape, total, 2 * dark, circuit, fs)
             records = {"main": z * i * gate}
             noise = noise_any
         else:
             arms = []
             for idx, ik in enumerate((i1, i2)):
-                nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=idx)
-                arms.append(z * (ik + _gaussian(rng, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
+                nz = balanced_noise(config, r1, r2, *mean_p, arm=idx)
+                arms.append(z * (ik + _gaussian(rng, shape, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
             records = {"arm1": arms[0], "arm2": arms[1]}
-            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
+            noise = balanced_noise(config, r1, r2, *mean_p, arm=0)
     elif mode == "heterodyne":
         records, noise, load = _heterodyne(config, bud, rng, sig, t, shape, resp, gate, th_sig, psi)
     else:
@@ -138,14 +177,13 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         r2 = analyze_records(records["arm2"], fs, load, averaging=proc.averaging, **kw)
         both = np.concatenate([records["arm1"], records["arm2"]], axis=1) if proc.averaging == "power" \
             else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
-        kwc = dict(kw, noise_span_hz=proc.noise_span_hz)
-        result = analyze_records(both, fs, load, averaging="power", keep_spectrum=keep_spectrum, **kwc)
-        # Summed arm powers (thesis Fig. 5.13): both the tone and the noise double.
+        result = analyze_records(both, fs, load, averaging="power", keep_spectrum=keep_spectrum, **kw)
+        # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
+        # report the sums; the SNR is unchanged.
         extra = {"arm1_Crx_w": r1.peak_power_w, "arm2_Crx_w": r2.peak_power_w,
                  "arm1_snr": r1.snr, "arm2_snr": r2.snr}
-        result = result.__class__(**{**result.__dict__,
-                                     "peak_power_w": 2 * result.peak_power_w,
-                                     "noise_psd_w_per_hz": 2 * result.noise_psd_w_per_hz})
+        result = dataclasses.replace(result, peak_power_w=2 * result.peak_power_w,
+                                     noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
     if sysc.modulation == "pn_code":
         return assemble_outputs(config, bud, result, noise, flags, tier="rf", lag_s=result.f_peak_hz,
                                 lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz)
@@ -162,14 +200,14 @@ def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
         i = resp["pin"] * p
         noise = pin_noise(config, resp["pin"], bud.psig_w)
         dark = c.solar_current_a + c.background_current_a + c.leakage_current_a
-        i_n = i + _gaussian(rng, i, dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + _gaussian(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
     else:
         a = config.apd
         i = resp["apd"] * p
         noise = apd_noise(config, resp["apd"], bud.psig_w)
         # Multiplied shot noise with excess factor F, referred to the primary photocurrent.
         f_ex = a.excess_noise_factor
-        i_n = i + _gaussian(rng, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
+        i_n = i + _gaussian(rng, shape, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
                             + a.leakage_current_a / a.gain**2, noise.thermal + noise.amplifier, fs)
     v = noise.gain_ohm * _lowpass(i_n, noise.bandwidth_hz, fs)
     if config.system.modulation == "pn_code":
@@ -195,12 +233,12 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
     if h.capped_arm:
         i = r * p1
         noise = balanced_noise(config, r, r, float(np.mean(p1)), 0.0, arm=0)
-        i_n = i + _gaussian(rng, i, dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + _gaussian(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
     else:
         p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         i = r * (p1 - p2)
         noise = balanced_noise(config, r, r, float(np.mean(p1)), float(np.mean(p2)))
-        i_n = i + _gaussian(rng, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + _gaussian(rng, shape, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
     # IF band-pass around f_LO and complex envelope (analytic signal shifted down by f_LO).
     n = t.size
     half = if_half_width_hz(config, bud)
