@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from chirplidar.cli import _json_number, main
-from chirplidar.demo import load_measured, psig_at_snr, shot_noise_power_dbm, shot_noise_snr_db
+from chirplidar.analysis import sensitivity_at
+from chirplidar.demo import load_measured, shot_noise_power_dbm, shot_noise_snr_db
 
 ROOT = Path(__file__).resolve().parents[1]
 MISSION = str(ROOT / "missions" / "thesis_bench.toml")
@@ -197,14 +198,13 @@ def test_shot_noise_limit_eq_2_6_2():
     assert shot_noise_power_dbm(10.0) == pytest.approx(10 * math.log10(p_w) + 30)
 
 
-def test_psig_at_snr_interpolates_first_crossing():
-    p = np.array([-40.0, -50.0, -60.0, -70.0])
-    snr = np.array([30.0, 20.0, 5.0, 12.0])            # noisy tail crosses back above
-    value, note = psig_at_snr(p[::-1], snr[::-1])       # order does not matter
-    assert value == pytest.approx(-50.0 - 10.0 * 10.0 / 15.0) and note == ""
-    assert math.isnan(psig_at_snr(p, snr + 100)[0])
-    assert math.isnan(psig_at_snr(p, snr - 100)[0])
-    assert psig_at_snr(p, np.array([30.0, 20.0, -math.inf, -math.inf]))[0] == -50.0
+def test_sensitivity_fit_reads_a_line_at_10_db():
+    # A coherent receiver's curve is a line of slope 1 (Fig. 5.7): SNR = Psig + 106 reads -96 dBm.
+    p = np.linspace(-60.0, -110.0, 11)
+    snr = np.maximum(p + 106.0, 6.0)          # the noise-peak floor below ~6 dB stays out of the fit
+    value, slope, used = sensitivity_at(p, snr)
+    assert value == pytest.approx(-96.0) and slope == pytest.approx(1.0) and used == 5  # 16..36 dB
+    assert math.isnan(sensitivity_at(p[:2], snr[:2])[0])
 
 
 def test_console_script_help():

@@ -20,6 +20,8 @@ from typing import Sequence
 
 import numpy as np
 
+from .analysis import sensitivity_at
+
 from .units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
 
 PNG_NAME = "fig5_7_sensitivity.png"
@@ -100,32 +102,6 @@ def shot_noise_power_dbm(snr_db: float, quantum_efficiency: float = 0.85,
     return float(snr_db - shot_noise_snr_db(0.0, quantum_efficiency, wavelength_m, bandwidth_hz))
 
 
-def psig_at_snr(psig_dbm: Sequence[float], snr_db: Sequence[float],
-                level_db: float = SNR_LEVEL_DB) -> tuple[float, str]:
-    """Power (dBm) where the curve first falls below ``level_db`` coming from strong signals,
-    linearly interpolated between the two points around the crossing; (nan, reason) if none."""
-    p = np.asarray(psig_dbm, dtype=float)
-    s = np.asarray(snr_db, dtype=float)
-    ok = np.isfinite(p)
-    p, s = p[ok], s[ok]
-    s = np.where(np.isnan(s), -np.inf, s)   # SNR -inf (no signal) counts as below the level
-    if p.size == 0:
-        return math.nan, "no finite Psig"
-    order = np.argsort(-p)                  # strong to weak
-    p, s = p[order], s[order]
-    above = s >= level_db
-    if not above[0]:
-        return math.nan, f"below {level_db:g} dB SNR already at {p[0]:.1f} dBm"
-    below = np.flatnonzero(~above)
-    if below.size == 0:
-        return math.nan, f"still above {level_db:g} dB SNR at {p[-1]:.1f} dBm"
-    i = int(below[0])                       # first point below; i - 1 is above
-    if not math.isfinite(s[i]):
-        return float(p[i - 1]), "crossing between a finite and a -inf SNR; upper point taken"
-    frac = (s[i - 1] - level_db) / (s[i - 1] - s[i])
-    return float(p[i - 1] + frac * (p[i] - p[i - 1])), ""
-
-
 def _fmt(value: float) -> str:
     return repr(float(value)) if math.isfinite(value) else ("-inf" if value < 0 else "inf"
                                                            if value > 0 else "nan")
@@ -203,7 +179,9 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
                    tier=tier, progress=progress)
         outputs = {n: np.asarray(ds[n].transpose("x", ...).values, dtype=float).reshape(
             ds.sizes["x"], -1)[:, 0] for n in OUTPUT_NAMES}
-        p10, note = psig_at_snr(outputs["Psig"], outputs["SNR"])
+        p10, slope, used = sensitivity_at(outputs["Psig"], outputs["SNR"], SNR_LEVEL_DB)
+        note = (f"line fit over SNR 12-40 dB, {used} points, slope {slope:.2f} dB/dB"
+                if used >= 3 else f"only {used} points with SNR 12-40 dB: no fit")
         flags = ([str(v) for v in ds["flags"].values.reshape(ds.sizes["x"], -1)[:, 0]]
                  if "flags" in ds.data_vars else [""] * ds.sizes["x"])
         curves.append(CurveResult(det, np.asarray(ds["x"].values, dtype=float), outputs, psig0,
@@ -230,7 +208,8 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
 
 
 def format_summary(result: DemoResult) -> str:
-    """Table of simulated against measured sensitivity (Psig at 10 dB SNR, dBm)."""
+    """Table of simulated against measured sensitivity (Psig at 10 dB SNR, dBm), read from a line
+    fitted over SNR 12-40 dB (:func:`chirplidar.analysis.sensitivity_at`), as the tests read it."""
     lines = [f"Sensitivity at {SNR_LEVEL_DB:g} dB SNR (Psig, dBm), {result.tier} tier:",
              f"  {'detection':<11} {'simulated':>10} {'measured':>9}  {'diff':>6}  source"]
     for c in result.curves:
