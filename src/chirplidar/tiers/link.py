@@ -111,7 +111,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
             noise_psd = noise.total
         if bud.ase_psd_w_per_hz > 0:
             # Received ASE (two-sided PSD h S per complex envelope) beating with the LO through
-            # i1 - i2 = 2 R Im(E_LO n*): one-sided current PSD 4 R^2 <|E_LO|^2> h S.
+            # i1 - i2 = 2 R Im(E_LO n*): one-sided current PSD 4 R^2 <|E_LO|^2> h S. Modelled for
+            # the balanced pair only; the phase-diversity link leaves it out (README, known limits).
             r_mean = 0.5 * (resp["balanced_1"] + resp["balanced_2"])
             beat = 4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz
             if mode == "homodyne":
@@ -128,7 +129,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
         snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
     out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
     # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
-    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)) * sim.duration_s, 1.0 / proc.rbw_hz * 0.1)
+    # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
+    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)), 1.0 / _GRID) * sim.duration_s
     e_over_n0 = snr * proc.rbw_hz * t_ov
     sigma_f = np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * t_ov)
     f_meas = f_b + sigma_f * rng.standard_normal(batch)
