@@ -262,3 +262,13 @@ def test_optical_amplifier_ase_beat_noise():
     quiet = simulate_shot(load_mission(CH5, ["lsr.Po=1e-15", "atm.Pattn=0"]), tier="link")["Navg"]
     assert abs(rf - link) < 1.0
     assert link > quiet + 3.0
+
+
+def test_satellite_range_delay_is_exact():
+    # DESIGN hard case: 550 km one way (3.7 ms round trip, 57 chirp periods). The reference delay
+    # (sys.fmaxopt) takes the bulk, the waveform is evaluated at t - tau exactly: range to the cm.
+    cfg = load_mission(BENCH, ["atm.dst=550e3", "channel.group_index=1.0", "sys.fmaxopt=20e6",
+                               "atm.Pattn=40"])
+    r = simulate_shot(cfg, seed=1)
+    assert abs(r["f_beat_hz"] - 20e6) < 1e4
+    assert abs(r["d_error"]) < 0.02
