@@ -47,25 +47,31 @@ def record_samples(cfg) -> int:
     return int(round(cfg.simulation.duration_s * cfg.simulation.sample_rate_hz))
 
 
-def time_fft(n_samples: int, repeats: int = 5, seed: int = 0) -> float:
-    """Median time (s) of one ``scipy.fft.rfft`` of a real float64 record of ``n_samples``."""
-    record = np.random.default_rng(seed).standard_normal(n_samples)
-    return time_call(lambda: scipy.fft.rfft(record), repeats=repeats)
-
-
 def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = None,
                repeats: int = 5, seed: int = 0, tier: str = "rf") -> dict[str, float | int]:
     """Time one shot of ``mission`` (default: missions/thesis_bench.toml, homodyne) against one FFT.
 
     Returns ``rf_shot_s`` (s per shot), ``fft_s`` (s per FFT of the same length), ``ratio``
-    (shot / FFT) and ``n_samples``. Both are timed in this call, so the ratio compares like with
-    like on the machine at hand; absolute times are not asserted anywhere.
+    (shot / FFT) and ``n_samples``. Shots and FFTs are timed in alternating pairs and ``ratio`` is
+    the median of the per-pair ratios: a shared machine's speed drifts between seconds, and a ratio
+    of two medians taken apart would carry that drift. Absolute times are not asserted anywhere.
     """
     from .api import simulate_shot
     from .config import load_mission
 
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
     cfg = load_mission(mission if mission is not None else default_mission_path(), overrides or [])
     n = record_samples(cfg)
-    shot_s = time_call(lambda: simulate_shot(cfg, seed=seed, tier=tier), repeats=repeats)
-    fft_s = time_fft(n, repeats=max(repeats, 20), seed=seed)
-    return {"rf_shot_s": shot_s, "fft_s": fft_s, "ratio": shot_s / fft_s, "n_samples": n}
+    record = np.random.default_rng(seed).standard_normal(n)
+    shot = lambda: simulate_shot(cfg, seed=seed, tier=tier)  # noqa: E731
+    fft = lambda: scipy.fft.rfft(record)  # noqa: E731
+    shot(), fft()  # warm-up: caches, FFT plans
+    shots, ffts = [], []
+    for _ in range(repeats):
+        shots.append(time_call(shot, repeats=1, warmup=0))
+        # The FFT is ~1 ms: the median of a few gives a steady reading next to each shot.
+        ffts.append(time_call(fft, repeats=5, warmup=0))
+    ratios = [a / b for a, b in zip(shots, ffts)]
+    return {"rf_shot_s": statistics.median(shots), "fft_s": statistics.median(ffts),
+            "ratio": statistics.median(ratios), "n_samples": n}

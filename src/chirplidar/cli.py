@@ -204,7 +204,7 @@ def cmd_bench(args) -> int:
         print(f"rf shot ({args.mission or 'missions/thesis_bench.toml'}): "
               f"{res['rf_shot_s'] * 1e3:.2f} ms")
         print(f"one rfft of N = {res['n_samples']} samples: {res['fft_s'] * 1e3:.3f} ms")
-        print(f"ratio shot / FFT: {res['ratio']:.1f}  (median of {args.repeats}, after warm-up)")
+        print(f"ratio shot / FFT: {res['ratio']:.1f}  (median of {args.repeats} shot/FFT pairs, after warm-up)")
     return 0
 
 
@@ -277,7 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mission file (default missions/thesis_bench.toml)")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
-    p.add_argument("--repeats", type=int, default=5, help="timed runs; the median is reported")
+    p.add_argument("--repeats", type=int, default=11, help="timed runs; the median is reported")
     p.add_argument("--json", action="store_true", help='print {"rf_shot_s", "fft_s", "ratio"}')
     p.set_defaults(func=cmd_bench)
 

@@ -43,9 +43,13 @@ def _gaussian(rng, shape, current_a: np.ndarray, dark_a: float, circuit_psd: flo
     every record gets its own noise. Unit normals are drawn in float32 (twice as fast; a noise
     sample needs no 53-bit mantissa); the variance and the result are float64.
     """
-    var = ELEMENTARY_CHARGE_C * fs_hz * (np.maximum(current_a, 0.0) + dark_a) + 0.5 * circuit_psd * fs_hz
-    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(var)), dtype=np.float32)
-    return unit * np.sqrt(var)
+    per_amp = ELEMENTARY_CHARGE_C * fs_hz
+    sigma = np.multiply(current_a, per_amp)               # variance, built in place ...
+    sigma += per_amp * dark_a + 0.5 * circuit_psd * fs_hz
+    np.maximum(sigma, 0.0, out=sigma)                     # (rounding can leave -1e-30 A)
+    np.sqrt(sigma, out=sigma)                             # ... then its square root
+    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(sigma)), dtype=np.float32)
+    return np.multiply(unit, sigma, dtype=np.float64)
 
 
 @lru_cache(maxsize=16)
@@ -148,8 +152,10 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         if mode == "homodyne":
             # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
             # one draw with the summed variance has the same distribution.
-            i = diff + _gaussian(rng, shape, total, 2 * dark, circuit, fs)
-            records = {"main": z * i * gate}
+            i = _gaussian(rng, shape, total, 2 * dark, circuit, fs)
+            i += diff
+            i *= z
+            records = {"main": i if gate.size == 1 else i * gate}
             noise = noise_any
         else:
             arms = []
