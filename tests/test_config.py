@@ -74,3 +74,19 @@ def test_readme_mapping_table_matches_the_alias_table():
     readme = (ROOT / "README.md").read_text()
     for thesis, key, unit, table in THESIS_TABLE:
         assert f"| `{thesis}` | `{key}` | {unit} | {table} |" in readme, thesis
+
+
+def test_effects_switch_is_the_enabled_list():
+    with pytest.raises(ConfigError, match="phase_noise"):
+        load_mission(BENCH, ["lsr.Lw=1e4"])
+    with pytest.raises(ConfigError, match=r"\[effects.doppler\] is missing"):
+        load_mission(BENCH, ['effects.enabled=["doppler"]'])
+    cfg = load_mission(BENCH, ['effects.enabled=["doppler"]', "effects.doppler.radial_velocity_mps=2"])
+    assert cfg.effects.doppler.radial_velocity_mps == 2.0
+
+
+def test_config_with_fills_an_absent_optional_section():
+    from chirplidar.config import config_with
+
+    cfg = config_with(load_mission(BENCH), {"effects.speckle.cells": 4, "effects.enabled": ["speckle"]})
+    assert cfg.effects.speckle.cells == 4

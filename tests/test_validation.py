@@ -187,7 +187,8 @@ def test_apd_receiver_runs_and_is_thermal_limited():
 
 
 def test_same_seed_same_output():
-    cfg = load_mission(BENCH, ["channel.carrier_phase=random", "lsr.Lw=1e4"])
+    cfg = load_mission(BENCH, ["channel.carrier_phase=random", "lsr.Lw=1e4",
+                               'effects.enabled=["phase_noise"]'])
     assert simulate_shot(cfg, seed=4) == simulate_shot(cfg, seed=4)
 
 
@@ -202,7 +203,8 @@ def test_phase_diversity_link_matches_rf_at_strong_signal():
 def test_laser_linewidth_coherence_link_matches_rf():
     # Self-homodyne coherence: E|sum A exp(j dtheta)|^2 with var(dtheta) = 2 pi dnu lag (link)
     # against the Wiener phase sampled exactly at the delayed times (rf), mean of 6 shots.
-    cfg = load_mission(CH5, [f"atm.Pattn={_pattn_for([], -80)}", "lsr.Lw=2e4"])
+    cfg = load_mission(CH5, [f"atm.Pattn={_pattn_for([], -80)}", "lsr.Lw=2e4",
+                             'effects.enabled=["phase_noise"]'])
     rf = 10 * np.log10(np.mean([10 ** (simulate_shot(cfg, seed=s)["SNR"] / 10) for s in range(6)]))
     link = simulate_shot(cfg, tier="link")["SNR"]
     full = simulate_shot(load_mission(CH5, [f"atm.Pattn={_pattn_for([], -80)}"]), tier="link")["SNR"]

@@ -75,3 +75,42 @@ def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = 
     ratios = [a / b for a, b in zip(shots, ffts)]
     return {"rf_shot_s": statistics.median(shots), "fft_s": statistics.median(ffts),
             "ratio": statistics.median(ratios), "n_samples": n}
+
+
+# Settings that switch each effect on for timing (a representative case of each).
+EFFECT_SETTINGS: dict[str, list[str]] = {
+    "phase_noise": ["lsr.Lw=1e4"],
+    "speckle": ["effects.speckle.cells=1"],
+    "doppler": ["effects.doppler.radial_velocity_mps=1.0"],
+}
+
+
+def bench_effects(mission: str | Path | None = None, overrides: list[str] | None = None,
+                  repeats: int = 11, seed: int = 0, tier: str = "rf") -> dict[str, float]:
+    """Seconds per shot with no effect and with each registered effect on alone.
+
+    Keys: ``none_s`` and ``<effect>_s`` for every effect of the registry; shots of all settings
+    are timed in turn, ``repeats`` rounds, and each key is the median over its rounds (so drift of
+    a shared machine affects them alike).
+    """
+    import json
+
+    from .api import simulate_shot
+    from .channel.effects import EFFECTS
+    from .config import load_mission
+
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    path = mission if mission is not None else default_mission_path()
+    configs = {"none": load_mission(path, overrides or [])}
+    for name in EFFECTS:
+        extra = EFFECT_SETTINGS[name] + [f"effects.enabled={json.dumps([name])}"]
+        configs[name] = load_mission(path, (overrides or []) + extra)
+    times: dict[str, list[float]] = {name: [] for name in configs}
+    for cfg in configs.values():
+        simulate_shot(cfg, seed=seed, tier=tier)  # warm-up: caches
+    for _ in range(repeats):
+        for name, cfg in configs.items():
+            times[name].append(time_call(lambda: simulate_shot(cfg, seed=seed, tier=tier),
+                                         repeats=1, warmup=0))
+    return {f"{name}_s": statistics.median(t) for name, t in times.items()}

@@ -193,10 +193,21 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import bench_shot
+    from .bench import bench_effects, bench_shot
 
     if args.repeats < 1:
         raise UsageError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.what == "effects":
+        res = bench_effects(args.mission, args.set or [], repeats=args.repeats)
+        if args.json:
+            print(_dump_json(res))
+        else:
+            base = res["none_s"]
+            print(f"seconds per rf shot ({args.mission or 'missions/thesis_bench.toml'}), "
+                  f"median of {args.repeats}:")
+            for key, value in res.items():
+                print(f"  {key[:-2]:<12} {value * 1e3:8.2f} ms   x{value / base:.2f}")
+        return 0
     res = bench_shot(args.mission, args.set or [], repeats=args.repeats)
     if args.json:
         print(_dump_json({k: res[k] for k in ("rf_shot_s", "fft_s", "ratio")}))
@@ -272,13 +283,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sweep, subparser=p)
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
-    p.add_argument("--what", choices=("shot",), default="shot", help="what to time")
+    p.add_argument("--what", choices=("shot", "effects"), default="shot",
+                   help="shot: an rf shot against one FFT; effects: a shot with each effect on "
+                        "and off")
     p.add_argument("--mission", default=None, metavar="MISSION",
                    help="mission file (default missions/thesis_bench.toml)")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
     p.add_argument("--repeats", type=int, default=11, help="timed runs; the median is reported")
-    p.add_argument("--json", action="store_true", help='print {"rf_shot_s", "fft_s", "ratio"}')
+    p.add_argument("--json", action="store_true",
+                   help='print {"rf_shot_s", "fft_s", "ratio"} (shot) or {"none_s", "<effect>_s", ...}')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import difflib
 import sys
+import typing
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -26,12 +27,21 @@ class ConfigError(ValueError):
     """A configuration problem; the message names the file and key."""
 
 
+def _section_model(annotation) -> type[BaseModel] | None:
+    """The model of a section field, also when it is optional (``Model | None``)."""
+    candidates = (annotation, *typing.get_args(annotation))
+    for ann in candidates:
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            return ann
+    return None
+
+
 def _model_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
     keys = []
     for name, field in model.model_fields.items():
-        ann = field.annotation
-        if isinstance(ann, type) and issubclass(ann, BaseModel):
-            keys.extend(_model_keys(ann, f"{prefix}{name}."))
+        section = _section_model(field.annotation)
+        if section is not None:
+            keys.extend(_model_keys(section, f"{prefix}{name}."))
         else:
             keys.append(f"{prefix}{name}")
     return keys
@@ -170,9 +180,9 @@ def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[
 
 def config_with(config: MissionConfig, overrides: Mapping[str, Any]) -> MissionConfig:
     """A new validated config with dotted-key overrides (thesis names accepted)."""
-    flat = _flatten(config.model_dump())
-    return apply_overrides(flat, overrides, "override")
+    return apply_overrides(config_flat(config), overrides, "override")
 
 
 def config_flat(config: MissionConfig) -> dict[str, Any]:
-    return _flatten(config.model_dump())
+    """Dotted keys of a config; absent optional sections (None) are left out, not written as None."""
+    return _flatten(config.model_dump(exclude_none=True))

@@ -254,6 +254,41 @@ class Heterodyne(_Model):
         "IF demodulation that knows the LO phase")
 
 
+EFFECT_NAMES = ("phase_noise", "speckle", "doppler")
+
+
+class DopplerEffect(_Model):
+    """Target motion along the beam (thesis eq. 2.2.5, Appendix D)."""
+
+    radial_velocity_mps: float = Field(description="closing speed along the line of sight "
+                                       "(positive: range decreasing)")
+
+
+class SpeckleEffect(_Model):
+    """Speckle of a rough target (Goodman): gamma-distributed power of order M, random phase."""
+
+    cells: float = Field(ge=1, description="speckle cells the receiver integrates, M (1 for a "
+                         "single-mode-fiber coherent receiver)")
+
+
+class Effects(_Model):
+    """Channel effects by name (DESIGN.md): only the enabled ones are computed or draw numbers."""
+
+    enabled: tuple[Literal["phase_noise", "speckle", "doppler"], ...] = Field(
+        (), description="effects to simulate; the rest cost nothing and draw no random numbers")
+    doppler: DopplerEffect | None = None
+    speckle: SpeckleEffect | None = None
+
+    @model_validator(mode="after")
+    def _sections(self):
+        if len(set(self.enabled)) != len(self.enabled):
+            raise ValueError(f"effects.enabled lists an effect twice: {list(self.enabled)}")
+        for name in self.enabled:
+            if name in ("doppler", "speckle") and getattr(self, name) is None:
+                raise ValueError(f"effects.enabled includes '{name}' but [effects.{name}] is missing")
+        return self
+
+
 class Sweep(_Model):
     """Thesis Table 4.11 (``test``)."""
 
@@ -290,6 +325,7 @@ class MissionConfig(_Model):
     balanced: Balanced
     pin: PIN
     heterodyne: Heterodyne
+    effects: Effects = Effects()
     sweep: Sweep = Sweep()
     seed: int = Field(ge=0, description="seed of the run's numpy Generator")
 
@@ -326,6 +362,12 @@ class MissionConfig(_Model):
                     "system.modulation = 'pn_code' needs a receiver that recovers the code "
                     "(system.receiver = 'pin' or 'apd'): the self-chirped homodyne product of a "
                     "code with its delayed copy carries no correlation peak")
+        lw_on = self.laser.linewidth_hz > 0
+        if lw_on != ("phase_noise" in self.effects.enabled):
+            raise ValueError(
+                "laser.linewidth_hz (lsr.Lw) > 0 needs 'phase_noise' in effects.enabled, and "
+                "'phase_noise' needs a linewidth > 0: the list is the one switch for each effect "
+                f"(linewidth {self.laser.linewidth_hz:g} Hz, enabled {list(self.effects.enabled)})")
         if self.processing.averages > 1 and self.waveform.chirp_period_s <= self.simulation.duration_s / 2:
             raise ValueError("processing.averages > 1 (sys.avg) needs one chirp per record: set "
                              "waveform.chirp_period_s (chrp.Tchp) > simulation.duration_s/2 "

@@ -85,14 +85,14 @@ def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
 
 def _crossing(x: np.ndarray, y: np.ndarray, level: float, start: int, step: int) -> float | None:
     """First x where y falls below ``level`` walking from ``start`` by ``step`` (linear interp)."""
-    i = start
-    while 0 <= i + step < y.size:
-        if y[i + step] < level:
-            y0, y1 = y[i], y[i + step]
-            frac = (y0 - level) / (y0 - y1) if y0 != y1 else 0.0
-            return float(x[i] + frac * (x[i + step] - x[i]))
-        i += step
-    return None
+    seg = y[start::step] if step > 0 else y[start::-1]
+    below = np.flatnonzero(seg < level)
+    if below.size == 0 or below[0] == 0:
+        return None
+    j = start + step * int(below[0])          # first point below; j - step is at or above
+    y0, y1 = y[j - step], y[j]
+    frac = (y0 - level) / (y0 - y1) if y0 != y1 else 0.0
+    return float(x[j - step] + frac * (x[j] - x[j - step]))
 
 
 def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,

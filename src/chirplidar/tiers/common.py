@@ -53,10 +53,13 @@ def peak_search_max_hz(config, bud) -> float:
     return config.simulation.sample_rate_hz / 2
 
 
-def detection_flags(config, bud) -> list[str]:
+def detection_flags(config, bud, returns=None) -> list[str]:
     flags = []
-    if bud.psig_w <= 0:
+    if bud.psig_w <= 0 or (returns is not None and not np.any(returns.power_factor > 0)):
         flags.append("no_return")
+    if returns is not None and np.any(np.abs(returns.doppler_hz) >= bud.f_beat_hz):
+        # Appendix D: the line at f_R - f_d folds through zero; its sign is lost.
+        flags.append("doppler_ambiguous")
     if config.system.modulation == "fm_chirp":
         rise, period = bud.train.rise_s, bud.train.period_s
         if bud.lag_s >= rise and period - bud.lag_s >= rise:
@@ -67,8 +70,12 @@ def detection_flags(config, bud) -> list[str]:
 
 
 def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=None, tier: str,
-                     lag_s=None, lag_lo_s=None, lag_hi_s=None) -> dict:
-    """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model."""
+                     lag_s=None, lag_lo_s=None, lag_hi_s=None, power_factor=None) -> dict:
+    """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model.
+
+    ``power_factor`` (per shot) is what the channel's effects did to the received power (speckle):
+    Psig reports each shot's own received power.
+    """
     n = np.size(result.snr)
     rate = bud.rate_hz_per_s
     if lag_s is None:
@@ -85,7 +92,8 @@ def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=Non
     full = lambda v: np.full(n, float(v))  # noqa: E731
     out = {
         "Pchrp": full(power_dbm(bud.pchrp_w)), "Ptx": full(power_dbm(bud.ptx_w)),
-        "Psig": full(power_dbm(bud.psig_w)),
+        "Psig": (full(power_dbm(bud.psig_w)) if power_factor is None
+                 else np.atleast_1d(power_dbm(bud.psig_w * np.asarray(power_factor, float)))),
         "Ne": full(power_dbm(noise.output_psd_w_per_hz(noise.amplifier))),
         "Ns": full(power_dbm(noise.output_psd_w_per_hz(noise.shot))),
         "Nt": full(power_dbm(noise.output_psd_w_per_hz(noise.thermal))),

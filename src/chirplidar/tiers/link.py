@@ -21,7 +21,8 @@ from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_fundamental_field, mzm_power_fundamental
 from .budget import coupler_field_transmission, make_budget, responsivities
-from .common import assemble_outputs, detection_flags
+from ..channel.effects import channel_returns
+from .common import assemble_outputs, detection_flags, optimal_phase
 
 _GRID = 8192  # points over the record for slowly varying envelopes
 
@@ -62,13 +63,29 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     rx = config.system.receiver
     mode = config.system.coherent_mode if rx == "coherent" else "direct"
     cp = config.channel.carrier_phase
-    phase_power = {"optimal": 1.0, "random": 0.5}.get(cp)
-    if phase_power is None:  # propagation: the actual static phase
-        psi = -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
-        phase_power = float(np.sin(psi) ** 2) if mode == "homodyne" else float(np.cos(
-            psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2)
+    returns = channel_returns(config, batch, rng)
+    flags = detection_flags(config, bud, returns)
+    if cp == "random":
+        phase_power = np.full(batch, 0.5)  # the mean over a uniform phase
+    else:
+        psi = (optimal_phase(mode) if cp == "optimal"
+               else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+        # Each shot's static phase (plus a speckle phase when that effect is on): the balanced
+        # pair reads sin^2 (i1 - i2 = 2 R Im(E_LO E_s*)), hybrid arm 1 cos^2(psi - arg S00 S01*).
+        psi = psi + returns.phase_rad
+        if mode == "phase_diversity":
+            phase_power = np.cos(psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2
+        else:
+            phase_power = np.sin(psi) ** 2
     f_b = bud.f_beat_hz
-    flags = detection_flags(config, bud)
+    # Overlap time of the two chirps: sets the resolution and the frequency scatter below.
+    # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
+    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)), 1.0 / _GRID) * sim.duration_s
+    # Doppler (Appendix D): a shift the record resolves splits the real beat into lines at
+    # f_R +- f_d of a quarter of the optimum-phase power each, whatever the carrier phase.
+    f_d = np.abs(returns.doppler_hz)
+    split = f_d >= 1.0 / t_ov
+    phase_power = np.where(split, 0.25, phase_power)
     extra = {}
     coherence = 1.0
     if mode in ("homodyne", "phase_diversity"):
@@ -91,7 +108,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
         else:
             k01 = 2 * abs(HYBRID_90[0, 0] * HYBRID_90[0, 1])
             arm_snr, arm_tone = [], []
-            for arm, share in ((0, phase_power), (1, 1.0 - phase_power)):
+            shares = ((0, np.where(split, 0.25, phase_power)), (1, np.where(split, 0.25, 1.0 - phase_power)))
+            for arm, share in shares:
                 r = (resp["balanced_1"], resp["balanced_2"])[arm]
                 tone_k = 0.5 * (r * k01 * np.mean(env)) ** 2 * share * coherence
                 nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=arm)
@@ -104,9 +122,9 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
             tone = sum(arm_tone)
             snr = tone / (noise_psd * proc.rbw_hz)
             to_out = h2 * noise.gain_ohm**2 / noise.load_ohm
-            extra = {"arm1_Crx_w": np.full(batch, arm_tone[0] * to_out),
-                     "arm2_Crx_w": np.full(batch, arm_tone[1] * to_out),
-                     "arm1_snr": np.full(batch, arm_snr[0]), "arm2_snr": np.full(batch, arm_snr[1])}
+            each = lambda v: np.broadcast_to(np.asarray(v, float), (batch,))  # noqa: E731
+            extra = {"arm1_Crx_w": each(arm_tone[0] * to_out), "arm2_Crx_w": each(arm_tone[1] * to_out),
+                     "arm1_snr": each(arm_snr[0]), "arm2_snr": each(arm_snr[1])}
         if mode == "homodyne":
             noise_psd = noise.total
         if bud.ase_psd_w_per_hz > 0:
@@ -127,19 +145,21 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
         tone, noise, snr, noise_psd = chain(config, bud, train, t, gate, w_sig, s_sig, resp)
     if config.processing.averaging == "coherent" and cp != "random" and config.laser.linewidth_hz == 0:
         snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
+    # Speckle (or any effect on the received power) scales each shot's beat.
+    tone = tone * returns.power_factor
+    snr = snr * returns.power_factor
     out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
     # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
-    # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
-    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)), 1.0 / _GRID) * sim.duration_s
     e_over_n0 = snr * proc.rbw_hz * t_ov
     sigma_f = np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * t_ov)
-    f_meas = f_b + sigma_f * rng.standard_normal(batch)
+    f_meas = f_b + np.where(split, f_d, 0.0) + sigma_f * rng.standard_normal(batch)
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
-    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.full(batch, tone * out_scale),
+    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.broadcast_to(tone * out_scale, (batch,)),
                         noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
                         f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
-                        snr=np.full(batch, float(snr)))
-    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="link")
+                        snr=np.broadcast_to(np.asarray(snr, float), (batch,)))
+    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="link",
+                            power_factor=returns.power_factor)
 
 
 def _mixer_noise_factor(train, t, gate, f_b, bandwidth_hz, ref_delay_s):

@@ -23,6 +23,7 @@ from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..transmitter import mzm_field, wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import Budget, coupler_field_transmission, make_budget, responsivities
+from ..channel.effects import channel_returns, effect_rng
 from .common import assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz
 
 
@@ -88,12 +89,15 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     resp = responsivities(config, bud.nu_hz)
     rx = sysc.receiver
     mode = sysc.coherent_mode if rx == "coherent" else "direct"
-    flags = detection_flags(config, bud)
+    returns = channel_returns(config, batch, rng)  # enabled effects, on their own streams
+    flags = detection_flags(config, bud, returns)
+    per_shot = (batch, 1, 1)
 
-    # Laser phase noise (only drawn when the laser has a linewidth).
+    # Laser phase noise ('phase_noise' effect: the config ties it to a linewidth > 0).
     lw = config.laser.linewidth_hz
     if lw > 0:
-        th_lo, th_sig = (th.reshape(shape) for th in wiener_phase([t_lo, t_sig], lw, rng, batch * k_avg))
+        th_lo, th_sig = (th.reshape(shape) for th in wiener_phase(
+            [t_lo, t_sig], lw, effect_rng(rng, "phase_noise"), batch * k_avg))
     else:
         th_lo = th_sig = np.zeros((batch, k_avg, 1))
     # Static carrier phase of the signal relative to the LO.
@@ -104,11 +108,16 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         psi = np.full((batch, k_avg, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
     else:
         psi = np.full((batch, k_avg, 1), optimal_phase(mode))
+    psi = psi + returns.phase_rad.reshape(per_shot)              # speckle phase
+    s_sig = s_sig * returns.power_factor.reshape(per_shot)      # speckle power
+    doppler = returns.doppler_hz.reshape(per_shot)
+    # Carrier Doppler shift of the return (a phase ramp); absent unless the effect is enabled.
+    dop_phase = 2 * np.pi * doppler * t if np.any(doppler != 0) else 0.0
     ase = None
     if bud.ase_psd_w_per_hz > 0:
         sigma = np.sqrt(bud.ase_psd_w_per_hz * fs * bud.h / 2.0)
         ase = sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
-    sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi, ase)
+    sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi + dop_phase, ase)
 
     load = None
     transfer = None
@@ -120,9 +129,9 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
         r1, r2 = resp["balanced_1"], resp["balanced_2"]
         if ase is None and lw == 0:
-            # Constant phase over each record: currents are fixed mixes of three cached arrays,
+            # Without phase noise or ASE the currents are fixed mixes of three cached arrays,
             # and a balanced pair's LO and signal power terms cancel in the coefficients.
-            cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, -psi) for k in (0, 1)]
+            cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, -psi - dop_phase) for k in (0, 1)]
             means = [float(np.mean(a)) for a in products]
             mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
                       for k in (0, 1)]
@@ -165,7 +174,8 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
             records = {"arm1": arms[0], "arm2": arms[1]}
             noise = balanced_noise(config, r1, r2, *mean_p, arm=0)
     elif mode == "heterodyne":
-        records, noise, load = _heterodyne(config, bud, rng, sig, t, shape, resp, gate, th_sig, psi)
+        records, noise, load = _heterodyne(config, bud, rng, sig, t, shape, resp, gate,
+                                           th_sig + dop_phase, psi)
     else:
         records, noise, load = _direct(config, bud, rng, sig, t, shape, resp, gate)
 
@@ -192,8 +202,10 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
                                      noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
     if sysc.modulation == "pn_code":
         return assemble_outputs(config, bud, result, noise, flags, tier="rf", lag_s=result.f_peak_hz,
-                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz)
-    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="rf")
+                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
+                                power_factor=returns.power_factor)
+    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="rf",
+                            power_factor=returns.power_factor)
 
 
 def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):

@@ -1,0 +1,108 @@
+"""Argument validation for the physics kernels: ValueError naming the argument, never ``assert``.
+
+One place for the generic checks; packages add only their own domain checks (optics: obstruction
+ratio, grid size; atmosphere: outer scale).
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+
+def real_scalar(name: str, value, *, allow_inf: bool = False) -> float:
+    """A real scalar as float; NaN is always refused, infinity unless ``allow_inf``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray)):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 0:
+        raise ValueError(f"{name} must be a scalar, got an array of shape {arr.shape}")
+    v = float(arr)
+    if np.isnan(v) or (not allow_inf and not np.isfinite(v)):
+        raise ValueError(f"{name} must be finite, got {v!r}")
+    return v
+
+
+def positive(name: str, value) -> float:
+    v = real_scalar(name, value)
+    if v <= 0.0:
+        raise ValueError(f"{name} must be > 0, got {v!r}")
+    return v
+
+
+def non_negative(name: str, value) -> float:
+    v = real_scalar(name, value)
+    if v < 0.0:
+        raise ValueError(f"{name} must be >= 0, got {v!r}")
+    return v
+
+
+def real_array(name: str, value) -> np.ndarray:
+    """A finite real array (0-d allowed) as float64; bool and complex dtypes are refused."""
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged input
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
+                                 or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{name} must be real-valued, got dtype {arr.dtype}")
+    arr = arr.astype(float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN or inf)")
+    return arr
+
+
+def non_negative_array(name: str, value) -> np.ndarray:
+    arr = real_array(name, value)
+    if np.any(arr < 0.0):
+        raise ValueError(f"{name} must be >= 0")
+    return arr
+
+
+def positive_array(name: str, value) -> np.ndarray:
+    arr = real_array(name, value)
+    if np.any(arr <= 0.0):
+        raise ValueError(f"{name} must be > 0")
+    return arr
+
+
+def unit_interval_array(name: str, value) -> np.ndarray:
+    arr = real_array(name, value)
+    if np.any((arr < 0.0) | (arr > 1.0)):
+        raise ValueError(f"{name} must lie in [0, 1]")
+    return arr
+
+
+def finite_array(name: str, value, dtype=float) -> np.ndarray:
+    """A finite array of ``dtype`` (complex allowed when asked for)."""
+    try:
+        arr = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN or inf)")
+    return arr
+
+
+def count(name: str, value) -> int:
+    """A non-negative integer (a number of draws or shots)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
+    return int(value)
+
+
+def generator(name: str, value) -> np.random.Generator:
+    if not isinstance(value, np.random.Generator):
+        raise ValueError(f"{name} must be a numpy.random.Generator (no global random state), "
+                         f"got {type(value).__name__}")
+    return value
+
+
+def out(arr: np.ndarray):
+    """0-d results as Python floats, arrays unchanged."""
+    return float(arr) if np.ndim(arr) == 0 else arr

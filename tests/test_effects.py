@@ -1,0 +1,96 @@
+"""The effect registry and the effects in the transceiver chain (issue 3: registry, Doppler)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from chirplidar import load_mission, simulate_shot
+from chirplidar.channel.effects import EFFECTS, channel_returns
+from chirplidar.config.models import EFFECT_NAMES
+from chirplidar.tiers import simulate_link, simulate_rf
+from conftest import BENCH, CH5, SMALL
+
+WAVELENGTH_M = 1.31e-6  # thesis Table 4.4 lsr.Lo
+
+
+def _cfg(*extra):
+    return load_mission(CH5, ["atm.Pattn=60", *extra])
+
+
+def _enable(*names):
+    return f"effects.enabled={json.dumps(list(names))}"
+
+
+def test_registry_and_config_name_the_same_effects():
+    assert tuple(EFFECTS) == EFFECT_NAMES
+
+
+def test_disabled_effects_cost_nothing_and_draw_nothing():
+    rng = np.random.default_rng(5)
+    state = rng.bit_generator.state
+    returns = channel_returns(_cfg(), 4, rng)
+    assert np.all(returns.power_factor == 1) and np.all(returns.doppler_hz == 0)
+    assert rng.bit_generator.state == state  # the run's stream is untouched
+
+
+def test_enabling_an_effect_leaves_the_other_streams_unchanged():
+    # Speckle draws come from speckle's own stream: adding Doppler does not change them.
+    both = _cfg(_enable("speckle", "doppler"), "effects.speckle.cells=1",
+                "effects.doppler.radial_velocity_mps=1")
+    alone = _cfg(_enable("speckle"), "effects.speckle.cells=1")
+    a = channel_returns(both, 8, np.random.default_rng(9))
+    b = channel_returns(alone, 8, np.random.default_rng(9))
+    np.testing.assert_array_equal(a.power_factor, b.power_factor)
+    # The detector noise is the same draw with and without phase noise (zero signal: pure noise).
+    quiet = ["atm.Pattn=inf"]
+    off = simulate_shot(_cfg(*quiet), seed=4)
+    on = simulate_shot(_cfg(*quiet, "lsr.Lw=1e4", _enable("phase_noise")), seed=4)
+    assert on["Navg"] == off["Navg"]
+
+
+@pytest.mark.parametrize("velocity_mps", [1.0, 3.0, -2.0])
+def test_doppler_moves_the_beat_by_2v_over_lambda(velocity_mps):
+    # eq. 2.2.5 and Appendix D: the real homodyne output has lines at f_R +- f_d; the peak search
+    # finds one of them, so the peak moves by |2 v / lambda| within one FFT bin.
+    cfg = _cfg(_enable("doppler"), f"effects.doppler.radial_velocity_mps={velocity_mps}")
+    still = simulate_shot(_cfg(), seed=1)
+    moving = simulate_shot(cfg, seed=1)
+    f_d = 2 * abs(velocity_mps) / WAVELENGTH_M
+    bin_hz = 1 / cfg.simulation.duration_s
+    assert abs(abs(moving["f_beat_hz"] - still["f_beat_hz"]) - f_d) < bin_hz
+    # Each line carries a quarter of the optimum-phase power: -6 dB, and the link tier agrees.
+    assert abs((still["SNR"] - moving["SNR"]) - 10 * np.log10(4)) < 1.0
+    assert abs(simulate_shot(cfg, tier="link")["SNR"] - moving["SNR"]) < 1.0
+
+
+def test_zero_velocity_is_no_doppler():
+    cfg = _cfg(_enable("doppler"), "effects.doppler.radial_velocity_mps=0")
+    assert simulate_shot(cfg, seed=2) == simulate_shot(_cfg(), seed=2)
+
+
+def test_doppler_beyond_the_beat_is_flagged():
+    # Appendix D: f_d > f_R folds the lower line through zero (sign ambiguity).
+    cfg = _cfg(_enable("doppler"), "effects.doppler.radial_velocity_mps=20")  # 30.5 MHz > 22 MHz
+    assert "doppler_ambiguous" in simulate_shot(cfg, tier="link")["flags"]
+
+
+@pytest.mark.parametrize("cells", [1, 16])
+def test_speckle_fading_of_the_homodyne_beat(cells):
+    # Speckle power g ~ Gamma(M, 1/M) times the homodyne phase factor 2 sin^2(psi), psi uniform
+    # (the speckle phase): E[g^2] = 1 + 1/M, E[(2 sin^2)^2] = 3/2, so the beat power's contrast is
+    # sqrt(1.5 (1 + 1/M) - 1) (Goodman; closed form). Link tier: 4000 shots, rf: mean level.
+    # The small 16 us record keeps 400 rf shots cheap; the beat is far above the noise.
+    cfg = load_mission(BENCH, SMALL + ["atm.Pattn=30", "mzm.Vdc=2.0", _enable("speckle"),
+                                       f"effects.speckle.cells={cells}"])
+    link = simulate_link(cfg, np.random.default_rng(3), batch=4000)
+    p = 10 ** (link["Crx"] / 10)
+    expected = np.sqrt(1.5 * (1 + 1 / cells) - 1)
+    assert abs(p.std() / p.mean() - expected) < 0.08
+    rf = simulate_rf(cfg, np.random.default_rng(3), batch=400)
+    p_rf = 10 ** (rf["Crx"] / 10)
+    # Standard error of a 400-shot mean at contrast <= 1.41: 7 % (0.3 dB); of the contrast ~0.1.
+    assert abs(10 * np.log10(p_rf.mean() / p.mean())) < 1.0
+    assert abs(p_rf.std() / p_rf.mean() - expected) < 0.3
+    # Psig reports each shot's own received power.
+    assert np.std(rf["Psig"]) > 0
