@@ -94,3 +94,50 @@ def test_speckle_fading_of_the_homodyne_beat(cells):
     assert abs(p_rf.std() / p_rf.mean() - expected) < 0.3
     # Psig reports each shot's own received power.
     assert np.std(rf["Psig"]) > 0
+
+
+def _coupled(obstruction, target, beta_target=None):
+    """Free-space bench with the coupling effect; focal length chosen to give ``beta_target``."""
+    from chirplidar.optics import optimal_beta
+    from chirplidar.optics.coupling import optimal_beta_monostatic
+
+    d_tel, w0 = 0.2032, 4.6e-6  # Table 4.6 atm.D_tel; SMF-28 mode-field radius at 1310 nm
+    if beta_target is None:
+        beta_target = (optimal_beta_monostatic(obstruction) if target == "diffuse"
+                       else optimal_beta(obstruction))
+    focal = 0.5 * np.pi * d_tel * w0 / (WAVELENGTH_M * beta_target)
+    return load_mission(CH5, ["atm.state=on", "atm.Pattn=0", "mzm.Vdc=2.0", _enable("coupling"),
+                              f"effects.coupling.obstruction_ratio={obstruction}",
+                              f"effects.coupling.focal_length_m={focal}",
+                              "effects.coupling.mode_field_radius_m=4.6e-6",
+                              f'effects.coupling.target="{target}"'])
+
+
+def test_coupling_effect_diffuse_target_is_the_thesis_42_percent():
+    # Thesis p. 59: "maximum theoretical coupling efficiency ... approximately 42%" = Winzer & Leeb
+    # (1998) monostatic coupling of a diffuse target's speckle (0.4248, unobstructed, optimal beta).
+    on = simulate_shot(_coupled(0.0, "diffuse"), tier="link")
+    off = simulate_shot(load_mission(CH5, ["atm.state=on", "atm.Pattn=0", "mzm.Vdc=2.0"]),
+                        tier="link")
+    assert abs((on["Psig"] - off["Psig"]) - 10 * np.log10(0.42)) < 0.1
+
+
+@pytest.mark.parametrize("obstruction", [0.0, 0.3])
+def test_coupling_effect_specular_target_follows_ruilier(obstruction):
+    # Plane-wave coupling with a central obstruction, closed form (Ruilier 1998):
+    # eta = 2 [exp(-a^2 b^2) - exp(-b^2)]^2 / (b^2 (1 - a^2)), evaluated here at beta = 1.
+    a, b = obstruction, 1.0
+    eta = 2 * (np.exp(-a * a * b * b) - np.exp(-b * b)) ** 2 / (b * b * (1 - a * a))
+    on = simulate_shot(_coupled(obstruction, "specular", beta_target=1.0), tier="link")
+    off = simulate_shot(load_mission(CH5, ["atm.state=on", "atm.Pattn=0", "mzm.Vdc=2.0"]),
+                        tier="link")
+    assert abs((on["Psig"] - off["Psig"]) - 10 * np.log10(eta)) < 1e-6
+
+
+def test_coupling_needs_free_space():
+    from chirplidar import ConfigError
+
+    with pytest.raises(ConfigError, match="free_space"):
+        load_mission(CH5, [_enable("coupling"), "effects.coupling.obstruction_ratio=0",
+                           "effects.coupling.focal_length_m=1", "effects.coupling.mode_field_radius_m=4.6e-6",
+                           'effects.coupling.target="diffuse"'])

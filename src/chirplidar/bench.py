@@ -82,6 +82,10 @@ EFFECT_SETTINGS: dict[str, list[str]] = {
     "phase_noise": ["lsr.Lw=1e4"],
     "speckle": ["effects.speckle.cells=1"],
     "doppler": ["effects.doppler.radial_velocity_mps=1.0"],
+    # Field-trial-like 8" telescope at f/5 with a 30 % obstruction, SMF-28 at 1310 nm (4.6 um).
+    "coupling": ["atm.state=on", "effects.coupling.obstruction_ratio=0.3",
+                 "effects.coupling.focal_length_m=1.0", "effects.coupling.mode_field_radius_m=4.6e-6",
+                 'effects.coupling.target="diffuse"'],
 }
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -57,6 +58,30 @@ def _doppler(config, returns: ShotReturns, rng: np.random.Generator) -> ShotRetu
     return dataclasses.replace(returns, doppler_hz=returns.doppler_hz + f_d)
 
 
+def coupling_factor(config) -> float:
+    """Mean telescope-to-fiber coupling for the configured telescope, fiber and target kind."""
+    from ..optics import coupling_beta
+
+    c = config.effects.coupling
+    beta = coupling_beta(config.channel.telescope_diameter_m, c.focal_length_m,
+                         c.mode_field_radius_m, config.laser.wavelength_m)
+    return _coupling_for(beta, c.obstruction_ratio, c.target)
+
+
+@lru_cache(maxsize=64)
+def _coupling_for(beta: float, obstruction: float, target: str) -> float:
+    """Cached: the diffuse (Winzer & Leeb) integral costs ~20 ms and every shot of a run reuses it."""
+    from ..optics import coupling_efficiency, monostatic_diffuse_coupling
+
+    if target == "diffuse":
+        return monostatic_diffuse_coupling(beta, obstruction)
+    return coupling_efficiency(beta, obstruction)
+
+
+def _coupling(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:
+    return dataclasses.replace(returns, power_factor=returns.power_factor * coupling_factor(config))
+
+
 EFFECTS: dict[str, Effect] = {
     "phase_noise": Effect("phase_noise", "laser linewidth as Wiener phase noise, exact at the "
                           "delayed times (applied by the transceiver tiers)", None),
@@ -64,6 +89,8 @@ EFFECTS: dict[str, Effect] = {
                       "(Goodman)", _speckle),
     "doppler": Effect("doppler", "carrier shift f_d = 2 v / lambda: lines at f_R +- f_d in the real "
                       "homodyne output (thesis Appendix D)", _doppler),
+    "coupling": Effect("coupling", "telescope-to-fiber coupling with the central obstruction "
+                       "(Ruilier 1998; monostatic diffuse targets: Winzer & Leeb 1998)", _coupling),
 }
 if tuple(EFFECTS) != EFFECT_NAMES:  # the config's list of names and the registry are one list
     raise ImportError("channel.effects.EFFECTS and config.models.EFFECT_NAMES disagree")

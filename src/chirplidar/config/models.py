@@ -254,7 +254,7 @@ class Heterodyne(_Model):
         "IF demodulation that knows the LO phase")
 
 
-EFFECT_NAMES = ("phase_noise", "speckle", "doppler")
+EFFECT_NAMES = ("phase_noise", "speckle", "doppler", "coupling")
 
 
 class DopplerEffect(_Model):
@@ -271,20 +271,35 @@ class SpeckleEffect(_Model):
                          "single-mode-fiber coherent receiver)")
 
 
+class CouplingEffect(_Model):
+    """Telescope-to-fiber coupling with a central obstruction (free space only).
+
+    diffuse targets: the monostatic mean of Winzer & Leeb (1998), 42 % at best unobstructed;
+    specular targets (a plane wave back): the closed form of Ruilier (1998), 81 % at best.
+    """
+
+    obstruction_ratio: float = Field(ge=0, lt=1, description="secondary / primary diameter")
+    focal_length_m: float = Field(gt=0, description="telescope focal length")
+    mode_field_radius_m: float = Field(gt=0, description="fiber mode-field radius (MFD / 2)")
+    target: Literal["diffuse", "specular"] = Field(description="diffuse (Lambertian speckle) or "
+                                                   "specular (plane wave) return")
+
+
 class Effects(_Model):
     """Channel effects by name (DESIGN.md): only the enabled ones are computed or draw numbers."""
 
-    enabled: tuple[Literal["phase_noise", "speckle", "doppler"], ...] = Field(
+    enabled: tuple[Literal["phase_noise", "speckle", "doppler", "coupling"], ...] = Field(
         (), description="effects to simulate; the rest cost nothing and draw no random numbers")
     doppler: DopplerEffect | None = None
     speckle: SpeckleEffect | None = None
+    coupling: CouplingEffect | None = None
 
     @model_validator(mode="after")
     def _sections(self):
         if len(set(self.enabled)) != len(self.enabled):
             raise ValueError(f"effects.enabled lists an effect twice: {list(self.enabled)}")
         for name in self.enabled:
-            if name in ("doppler", "speckle") and getattr(self, name) is None:
+            if name in ("doppler", "speckle", "coupling") and getattr(self, name) is None:
                 raise ValueError(f"effects.enabled includes '{name}' but [effects.{name}] is missing")
         return self
 
@@ -362,6 +377,9 @@ class MissionConfig(_Model):
                     "system.modulation = 'pn_code' needs a receiver that recovers the code "
                     "(system.receiver = 'pin' or 'apd'): the self-chirped homodyne product of a "
                     "code with its delayed copy carries no correlation peak")
+        if "coupling" in self.effects.enabled and not self.channel.free_space:
+            raise ValueError("effects 'coupling' needs channel.free_space = on (atm.state): the "
+                             "bench's fiber channel has no telescope")
         lw_on = self.laser.linewidth_hz > 0
         if lw_on != ("phase_noise" in self.effects.enabled):
             raise ValueError(
