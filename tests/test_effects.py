@@ -141,3 +141,73 @@ def test_coupling_needs_free_space():
         load_mission(CH5, [_enable("coupling"), "effects.coupling.obstruction_ratio=0",
                            "effects.coupling.focal_length_m=1", "effects.coupling.mode_field_radius_m=4.6e-6",
                            'effects.coupling.target="diffuse"'])
+
+
+def _turbulent(cn2, fading="mean", extra=()):
+    # Free space over the Table 4.6 path (atm.dst = 1572 m), 8" telescope, beta = 1, specular
+    # return (plane wave: the turbulent coupling is then exact, not scaled).
+    d_tel, w0 = 0.2032, 4.6e-6
+    focal = 0.5 * np.pi * d_tel * w0 / WAVELENGTH_M
+    return load_mission(CH5, ["atm.state=on", "atm.Pattn=0", "mzm.Vdc=2.0", "atm.dst=1572",
+                              "system.reference_delay_s=0", f"atm.Cn2={cn2}",
+                              _enable("coupling", "turbulence"),
+                              "effects.coupling.obstruction_ratio=0",
+                              f"effects.coupling.focal_length_m={focal}",
+                              "effects.coupling.mode_field_radius_m=4.6e-6",
+                              'effects.coupling.target="specular"',
+                              f'effects.turbulence.fading="{fading}"',
+                              "effects.turbulence.outer_scale_m=1e4", *extra])
+
+
+def _cn2_for(d_over_r0, path_m=1572.0, d_tel=0.2032):
+    # Invert the plane-wave Fried parameter r0 = (0.423 k^2 Cn2 L)^(-3/5) (Fried 1966).
+    k = 2 * np.pi / WAVELENGTH_M
+    return (d_tel / d_over_r0) ** (-5 / 3) / (0.423 * k * k * path_m)
+
+
+def test_turbulence_effect_loss_is_the_mutual_coherence_coupling():
+    # The chain's turbulent loss (a cached table, outer scale 1e4 m) against the direct
+    # mutual-coherence integral <eta> = int C(d) exp(-D_phi(d)/2) (Kolmogorov, D_phi =
+    # 6.88 (d/r0)^(5/3)), which tests/test_atmosphere.py checks against Monte Carlo screens.
+    from chirplidar.atmosphere import turbulent_coupling_exact
+    from chirplidar.optics import coupling_efficiency
+
+    clear = simulate_shot(_turbulent(0.0), tier="link")["Psig"]
+    for d_over_r0 in (0.3, 1.0, 3.0):
+        loss_db = clear - simulate_shot(_turbulent(_cn2_for(d_over_r0)), tier="link")["Psig"]
+        exact = turbulent_coupling_exact(d_over_r0, 1.0, 0.0)
+        expected_db = -10 * np.log10(exact / coupling_efficiency(1.0, 0.0))
+        # 3 %: the finite outer scale (L0 / D = 5e4) raises the coupling by up to 2.6 % at 3.
+        assert abs(loss_db - expected_db) < 10 * np.log10(1.03), d_over_r0
+
+
+def test_turbulence_frozen_flow_fading():
+    cn2 = _cn2_for(3.0)
+    still = _turbulent(cn2, "frozen_flow", ["effects.turbulence.transverse_speed_mps=0",
+                                            "effects.turbulence.shot_interval_s=1e-4"])
+    r = simulate_link(still, np.random.default_rng(2), batch=6)
+    assert np.ptp(r["Psig"]) < 1e-9  # a screen that does not move: every shot sees the same phase
+    moving = _turbulent(cn2, "frozen_flow", ["effects.turbulence.transverse_speed_mps=100",
+                                             "effects.turbulence.shot_interval_s=1e-2"])
+    r = simulate_link(moving, np.random.default_rng(2), batch=120)
+    p = 10 ** (r["Psig"] / 10)
+    mean = 10 ** (simulate_shot(_turbulent(cn2), tier="link")["Psig"] / 10)
+    assert np.std(p) > 0.05 * np.mean(p)            # it fades
+    assert abs(np.mean(p) / mean - 1) < 0.15        # around the mutual-coherence mean
+
+
+def test_squaring_recovery_removes_the_doppler_range_error():
+    # Appendix D: y^2 holds (1/4) cos(2 w_B t), which the Doppler shift does not move; with the
+    # search above 2 x the largest Doppler (10 MHz, the thesis's example) the beat is f_R again.
+    base = [_enable("doppler"), "effects.doppler.radial_velocity_mps=3"]  # f_d = 4.58 MHz
+    plain = simulate_shot(_cfg(*base), seed=1)
+    squared = simulate_shot(_cfg(*base, 'processing.doppler_recovery="squaring"',
+                                 "processing.doppler_max_hz=10e6"), seed=1)
+    still = simulate_shot(_cfg(), seed=1)
+    bin_hz = 1 / 106e-6  # thesis_ch5_bench record
+    assert abs(abs(plain["f_beat_hz"] - still["f_beat_hz"]) - 2 * 3 / WAVELENGTH_M) < bin_hz
+    assert abs(squared["f_beat_hz"] - still["f_beat_hz"]) < bin_hz
+    assert "squaring_recovery" in squared["flags"]
+    with pytest.raises(ValueError, match="rf tier"):
+        simulate_shot(_cfg(*base, 'processing.doppler_recovery="squaring"',
+                           "processing.doppler_max_hz=10e6"), tier="link")

@@ -2,7 +2,8 @@
 
 from .api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_shot, sweep
 from .config import ConfigError, MissionConfig, load_mission
+from .doppler import doppler_shift_hz
 
 __version__ = "0.1.0"
 __all__ = ["simulate_shot", "sweep", "load_mission", "ConfigError", "MissionConfig",
-           "OUTPUT_NAMES", "OUTPUT_UNITS", "__version__"]
+           "OUTPUT_NAMES", "OUTPUT_UNITS", "doppler_shift_hz", "__version__"]

@@ -87,6 +87,11 @@ EFFECT_SETTINGS: dict[str, list[str]] = {
                  "effects.coupling.focal_length_m=1.0", "effects.coupling.mode_field_radius_m=4.6e-6",
                  'effects.coupling.target="diffuse"'],
 }
+# Turbulence degrades the coupling, so it is timed with 'coupling' on too (mean fading: the mode
+# mission runs use).
+EFFECT_SETTINGS["turbulence"] = EFFECT_SETTINGS["coupling"] + [
+    'effects.turbulence.fading="mean"', "effects.turbulence.outer_scale_m=20"]
+EFFECTS_ALSO_ENABLED = {"turbulence": ["coupling"]}
 
 
 def bench_effects(mission: str | Path | None = None, overrides: list[str] | None = None,
@@ -108,7 +113,8 @@ def bench_effects(mission: str | Path | None = None, overrides: list[str] | None
     path = mission if mission is not None else default_mission_path()
     configs = {"none": load_mission(path, overrides or [])}
     for name in EFFECTS:
-        extra = EFFECT_SETTINGS[name] + [f"effects.enabled={json.dumps([name])}"]
+        names = EFFECTS_ALSO_ENABLED.get(name, []) + [name]
+        extra = EFFECT_SETTINGS[name] + [f"effects.enabled={json.dumps(names)}"]
         configs[name] = load_mission(path, (overrides or []) + extra)
     times: dict[str, list[float]] = {name: [] for name in configs}
     for cfg in configs.values():

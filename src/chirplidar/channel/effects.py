@@ -60,12 +60,8 @@ def _doppler(config, returns: ShotReturns, rng: np.random.Generator) -> ShotRetu
 
 def coupling_factor(config) -> float:
     """Mean telescope-to-fiber coupling for the configured telescope, fiber and target kind."""
-    from ..optics import coupling_beta
-
     c = config.effects.coupling
-    beta = coupling_beta(config.channel.telescope_diameter_m, c.focal_length_m,
-                         c.mode_field_radius_m, config.laser.wavelength_m)
-    return _coupling_for(beta, c.obstruction_ratio, c.target)
+    return _coupling_for(_coupling_beta(config), c.obstruction_ratio, c.target)
 
 
 @lru_cache(maxsize=64)
@@ -82,6 +78,55 @@ def _coupling(config, returns: ShotReturns, rng: np.random.Generator) -> ShotRet
     return dataclasses.replace(returns, power_factor=returns.power_factor * coupling_factor(config))
 
 
+def turbulence_d_over_r0(config) -> float:
+    """D / r0 of the return path: spherical wave from a diffuse target, plane wave from a specular
+    one, constant Cn^2 (atm.Cn2) over the one-way distance (atm.dst)."""
+    from ..atmosphere import fried_parameter
+
+    wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
+    r0 = fried_parameter(config.channel.cn2_m_minus_2_3, config.laser.wavelength_m,
+                         config.channel.distance_m, wave=wave)
+    return config.channel.telescope_diameter_m / r0
+
+
+def _coupling_beta(config) -> float:
+    from ..optics import coupling_beta
+
+    c = config.effects.coupling
+    return coupling_beta(config.channel.telescope_diameter_m, c.focal_length_m,
+                         c.mode_field_radius_m, config.laser.wavelength_m)
+
+
+def _turbulence(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:
+    """Coupling through turbulence relative to the plane-wave coupling without it.
+
+    For a specular return this is exact (the coupling effect then holds the plane-wave value); for a
+    diffuse one it scales Winzer & Leeb's mean by the same ratio, an approximation (turbulence
+    and target speckle together are not modelled jointly).
+    """
+    from ..atmosphere import MovingScreen, turbulent_coupling_mean
+    from ..optics import coupling_efficiency, pupil_field_coupling
+
+    t = config.effects.turbulence
+    c = config.effects.coupling
+    if config.channel.cn2_m_minus_2_3 == 0:
+        return returns
+    beta, alpha = _coupling_beta(config), c.obstruction_ratio
+    d_over_r0 = turbulence_d_over_r0(config)
+    plane = coupling_efficiency(beta, alpha)
+    d_tel = config.channel.telescope_diameter_m
+    if t.fading == "mean":
+        factor = float(turbulent_coupling_mean(d_over_r0, beta, alpha,
+                                               outer_scale_over_d=t.outer_scale_m / d_tel)) / plane
+        return dataclasses.replace(returns, power_factor=returns.power_factor * factor)
+    n = max(64, int(np.ceil(4 * d_over_r0)))  # >= 4 pixels per r0 (see atmosphere.coupling)
+    screen = MovingScreen(n, d_tel / n, d_tel / d_over_r0, t.outer_scale_m, rng=rng)
+    shifts = np.full(returns.power_factor.size, t.transverse_speed_mps * t.shot_interval_s)
+    phases = screen.next_apertures(shifts)
+    eta = np.atleast_1d(pupil_field_coupling(np.exp(1j * phases), beta, alpha))
+    return dataclasses.replace(returns, power_factor=returns.power_factor * eta / plane)
+
+
 EFFECTS: dict[str, Effect] = {
     "phase_noise": Effect("phase_noise", "laser linewidth as Wiener phase noise, exact at the "
                           "delayed times (applied by the transceiver tiers)", None),
@@ -91,6 +136,8 @@ EFFECTS: dict[str, Effect] = {
                       "homodyne output (thesis Appendix D)", _doppler),
     "coupling": Effect("coupling", "telescope-to-fiber coupling with the central obstruction "
                        "(Ruilier 1998; monostatic diffuse targets: Winzer & Leeb 1998)", _coupling),
+    "turbulence": Effect("turbulence", "phase-only turbulence in the pupil: mean coupling loss "
+                         "(mutual coherence) or frozen-flow fading from shot to shot", _turbulence),
 }
 if tuple(EFFECTS) != EFFECT_NAMES:  # the config's list of names and the registry are one list
     raise ImportError("channel.effects.EFFECTS and config.models.EFFECT_NAMES disagree")

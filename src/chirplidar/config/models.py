@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
+
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 # Thesis string values accepted wherever the project's own value is expected (Table 4.2, 4.6, 4.11).
@@ -100,6 +102,13 @@ class Processing(_Model):
         "bins with the Dirichlet kernel, maximised on a fine grid (no scalloping)")
     noise_span_hz: float = Field(
         4e6, gt=0, description="span around the peak over which the noise level is averaged")
+    doppler_recovery: Literal["none", "squaring"] = Field(
+        "none", description="'squaring' squares the real beat record and reads the line at "
+        "2 f_R, which Doppler does not move (thesis Appendix D; rf tier, homodyne receivers)")
+    doppler_max_hz: float | None = Field(
+        None, gt=0, description="largest Doppler shift expected (squaring): the search for 2 f_R "
+        "starts above 2 x this, clear of the squared Doppler line at 2 f_d (Appendix D assumes "
+        "10 MHz, about 13 m/s at 1310 nm)")
     noise_guard_hz: float = Field(
         1e6, gt=0, description="half-width around the peak excluded from the noise average: keeps "
         "the tone's own sidelobes out of the noise reading (the thesis reads the noise over a "
@@ -254,7 +263,7 @@ class Heterodyne(_Model):
         "IF demodulation that knows the LO phase")
 
 
-EFFECT_NAMES = ("phase_noise", "speckle", "doppler", "coupling")
+EFFECT_NAMES = ("phase_noise", "speckle", "doppler", "coupling", "turbulence")
 
 
 class DopplerEffect(_Model):
@@ -285,22 +294,52 @@ class CouplingEffect(_Model):
                                                    "specular (plane wave) return")
 
 
+class TurbulenceEffect(_Model):
+    """Phase-only turbulence in the receive pupil, Cn^2 = atm.Cn2 over atm.dst (needs 'coupling').
+
+    'mean': the mutual-coherence mean coupling (deterministic, draws nothing). 'frozen_flow':
+    successive shots of a batch see one screen moving past the aperture by speed x interval, so
+    the fading of coupled power is correlated from shot to shot.
+    """
+
+    fading: Literal["mean", "frozen_flow"]
+    outer_scale_m: float = Field(gt=0, description="von Karman outer scale (finite for "
+                                 "frozen flow; the phase covariance needs it)")
+    transverse_speed_mps: float | None = Field(None, ge=0, description="screen speed across the "
+                                               "beam (frozen_flow)")
+    shot_interval_s: float | None = Field(None, gt=0, description="time between shots (frozen_flow)")
+
+    @model_validator(mode="after")
+    def _frozen(self):
+        if self.fading == "frozen_flow":
+            if self.transverse_speed_mps is None or self.shot_interval_s is None:
+                raise ValueError("turbulence fading = 'frozen_flow' needs transverse_speed_mps "
+                                 "and shot_interval_s")
+            if not np.isfinite(self.outer_scale_m):
+                raise ValueError("turbulence fading = 'frozen_flow' needs a finite outer_scale_m")
+        return self
+
+
 class Effects(_Model):
     """Channel effects by name (DESIGN.md): only the enabled ones are computed or draw numbers."""
 
-    enabled: tuple[Literal["phase_noise", "speckle", "doppler", "coupling"], ...] = Field(
+    enabled: tuple[Literal["phase_noise", "speckle", "doppler", "coupling", "turbulence"], ...] = Field(
         (), description="effects to simulate; the rest cost nothing and draw no random numbers")
     doppler: DopplerEffect | None = None
     speckle: SpeckleEffect | None = None
     coupling: CouplingEffect | None = None
+    turbulence: TurbulenceEffect | None = None
 
     @model_validator(mode="after")
     def _sections(self):
         if len(set(self.enabled)) != len(self.enabled):
             raise ValueError(f"effects.enabled lists an effect twice: {list(self.enabled)}")
         for name in self.enabled:
-            if name in ("doppler", "speckle", "coupling") and getattr(self, name) is None:
+            if name in ("doppler", "speckle", "coupling", "turbulence") and getattr(self, name) is None:
                 raise ValueError(f"effects.enabled includes '{name}' but [effects.{name}] is missing")
+        if "turbulence" in self.enabled and "coupling" not in self.enabled:
+            raise ValueError("effects 'turbulence' degrades the fiber coupling: enable 'coupling' "
+                             "too (it holds the telescope and fiber)")
         return self
 
 
@@ -380,6 +419,8 @@ class MissionConfig(_Model):
         if "coupling" in self.effects.enabled and not self.channel.free_space:
             raise ValueError("effects 'coupling' needs channel.free_space = on (atm.state): the "
                              "bench's fiber channel has no telescope")
+        if self.processing.doppler_recovery == "squaring" and self.processing.doppler_max_hz is None:
+            raise ValueError("processing.doppler_recovery = 'squaring' needs processing.doppler_max_hz")
         lw_on = self.laser.linewidth_hz > 0
         if lw_on != ("phase_noise" in self.effects.enabled):
             raise ValueError(

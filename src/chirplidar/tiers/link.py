@@ -50,6 +50,9 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
         raise ValueError("the link tier models FM chirps only; use --tier rf for system.modulation = "
                          "'pn_code' (sys.MxMode = PN)")
     sim, proc = config.simulation, config.processing
+    if proc.doppler_recovery != "none":
+        raise ValueError("processing.doppler_recovery = 'squaring' is modelled in the rf tier only "
+                         "(use --tier rf): its noise penalty has no closed form here")
     train = bud.train
     t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
     gate = train.record_gate(t, sim.duration_s).astype(float)

@@ -183,6 +183,17 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
               peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
               noise_guard_hz=proc.noise_guard_hz, transfer=transfer,
               search_max_hz=peak_search_max_hz(config, bud))
+    squaring = proc.doppler_recovery == "squaring"
+    if squaring:
+        if "main" not in records or mode != "homodyne" or sysc.modulation != "fm_chirp":
+            raise ValueError("processing.doppler_recovery = 'squaring' applies to the self-chirped "
+                             "homodyne FM receiver (thesis Appendix D)")
+        # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
+        y = records["main"]
+        records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
+        flags.append("squaring_recovery")
+        kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
+        kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs / 2)
     if sysc.modulation == "pn_code":
         result = _pn_correlate(records["main"], train, t_lo, fs, load, proc)
     elif "main" in records:
@@ -200,6 +211,10 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
                  "arm1_snr": r1.snr, "arm2_snr": r2.snr}
         result = dataclasses.replace(result, peak_power_w=2 * result.peak_power_w,
                                      noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
+    if squaring:
+        # The line found is 2 f_R; its power and SNR are those of the squared record.
+        result = dataclasses.replace(result, f_peak_hz=result.f_peak_hz / 2,
+                                     f_lo_hz=result.f_lo_hz / 2, f_hi_hz=result.f_hi_hz / 2)
     if sysc.modulation == "pn_code":
         return assemble_outputs(config, bud, result, noise, flags, tier="rf", lag_s=result.f_peak_hz,
                                 lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
