@@ -45,12 +45,32 @@ class Effect:
     apply: Callable[..., ShotReturns] | None
 
 
+def speckle_shot_correlation(config) -> float:
+    """Lag-1 intensity correlation of successive shots' speckle (matched single-mode transceiver):
+    the footprint radius and wavefront curvature at atm.dst of the beam of waist atm.Wo."""
+    from ..optics import beam_radius_m
+    from ..target import speckle_decorrelation
+
+    ch = config.channel
+    w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
+    return float(speckle_decorrelation(config.effects.speckle.shift_per_shot_m, w,
+                                       config.laser.wavelength_m, ch.distance_m))
+
+
 def _speckle(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:
     n = returns.power_factor.size
-    cells = config.effects.speckle.cells
-    return dataclasses.replace(
-        returns, power_factor=returns.power_factor * speckle_power(n, cells, rng),
-        phase_rad=returns.phase_rad + rng.uniform(0.0, 2 * np.pi, n))
+    sp = config.effects.speckle
+    if sp.shift_per_shot_m is None:
+        power, phase = speckle_power(n, sp.cells, rng), rng.uniform(0.0, 2 * np.pi, n)
+    else:
+        # Successive shots of the batch over a moving footprint: a correlated field sequence;
+        # the homodyne receiver sees the first cell's phase (M = 1 for a single-mode fiber).
+        from ..target import correlated_speckle_field
+
+        z = correlated_speckle_field(n, speckle_shot_correlation(config), int(sp.cells), rng)
+        power, phase = np.sum(z.real**2 + z.imag**2, axis=1), np.angle(z[:, 0])
+    return dataclasses.replace(returns, power_factor=returns.power_factor * power,
+                               phase_rad=returns.phase_rad + phase)
 
 
 def _doppler(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:

@@ -278,6 +278,15 @@ class SpeckleEffect(_Model):
 
     cells: float = Field(ge=1, description="speckle cells the receiver integrates, M (1 for a "
                          "single-mode-fiber coherent receiver)")
+    shift_per_shot_m: float | None = Field(
+        None, ge=0, description="footprint displacement between successive shots; unset: "
+        "independent speckle per shot; set: a correlated sequence (whole cells only)")
+
+    @model_validator(mode="after")
+    def _whole_cells(self):
+        if self.shift_per_shot_m is not None and self.cells != int(self.cells):
+            raise ValueError("effects.speckle.shift_per_shot_m needs a whole number of cells")
+        return self
 
 
 class CouplingEffect(_Model):
