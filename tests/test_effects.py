@@ -110,6 +110,7 @@ def _coupled(obstruction, target, beta_target=None):
                               f"effects.coupling.obstruction_ratio={obstruction}",
                               f"effects.coupling.focal_length_m={focal}",
                               "effects.coupling.mode_field_radius_m=4.6e-6",
+                              "effects.coupling.fiber_numerical_aperture=0.14",  # SMF-28
                               f'effects.coupling.target="{target}"'])
 
 
@@ -140,6 +141,7 @@ def test_coupling_needs_free_space():
     with pytest.raises(ConfigError, match="free_space"):
         load_mission(CH5, [_enable("coupling"), "effects.coupling.obstruction_ratio=0",
                            "effects.coupling.focal_length_m=1", "effects.coupling.mode_field_radius_m=4.6e-6",
+                           "effects.coupling.fiber_numerical_aperture=0.14",
                            'effects.coupling.target="diffuse"'])
 
 
@@ -154,6 +156,7 @@ def _turbulent(cn2, fading="mean", extra=()):
                               "effects.coupling.obstruction_ratio=0",
                               f"effects.coupling.focal_length_m={focal}",
                               "effects.coupling.mode_field_radius_m=4.6e-6",
+                              "effects.coupling.fiber_numerical_aperture=0.14",
                               'effects.coupling.target="specular"',
                               f'effects.turbulence.fading="{fading}"',
                               "effects.turbulence.outer_scale_m=1e4", *extra])
@@ -235,3 +238,11 @@ def test_speckle_decorrelates_as_the_footprint_moves():
     # A genuinely partial case: 0.5 mm on this bench. With W = 4.5 m at R = 11.35 km the curvature
     # term dominates: 1/e decorrelation at s = lambda R / (sqrt(2) pi W) = 0.74 mm.
     assert 0.2 < speckle_shot_correlation(returns(5e-4)[0]) < 0.9
+
+
+def test_fiber_acceptance_is_flagged():
+    # SMF-28 NA 0.14: an f/1 cone (marginal ray 26.6 deg, sin = 0.45) overfills it; f/5 does not.
+    ok = _coupled(0.0, "diffuse")  # optimal beta: f = 1.03 m, D/2f = 0.099 < 0.14
+    assert "fiber_acceptance_exceeded" not in simulate_shot(ok, tier="link")["flags"]
+    fast = _coupled(0.0, "diffuse", beta_target=5.0)  # f = 0.2 m: D/2f = 0.5
+    assert "fiber_acceptance_exceeded" in simulate_shot(fast, tier="link")["flags"]

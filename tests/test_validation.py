@@ -274,3 +274,16 @@ def test_satellite_range_delay_is_exact():
     r = simulate_shot(cfg, seed=1)
     assert abs(r["f_beat_hz"] - 20e6) < 1e4
     assert abs(r["d_error"]) < 0.02
+
+
+def test_free_space_range_equation_eq_2_2_3():
+    # atm.state = on, Table 4.6 values: P_r / P_t = intercept x rho A / (pi R^2) x T_atm^4 x T_opt^2
+    # with a Gaussian beam of W = sqrt(W0^2 + (div R)^2) on a disc of radius Wr (closed forms).
+    cfg = load_mission(BENCH, ["atm.state=on", "atm.Pattn=0"])
+    r = simulate_shot(cfg, tier="link")
+    rng_m, w0, div, wr = 1572.0, 0.010, 0.4e-3, 0.150
+    w = np.hypot(w0, div * rng_m)
+    intercept = 1 - np.exp(-2 * wr**2 / w**2)
+    area = np.pi * 0.2032**2 / 4
+    expected = intercept * 0.46 * area / (np.pi * rng_m**2) * 0.995**4 * 0.120**2
+    assert abs((r["Psig"] - r["Ptx"]) - 10 * np.log10(expected)) < 1e-9

@@ -85,7 +85,7 @@ EFFECT_SETTINGS: dict[str, list[str]] = {
     # Field-trial-like 8" telescope at f/5 with a 30 % obstruction, SMF-28 at 1310 nm (4.6 um).
     "coupling": ["atm.state=on", "effects.coupling.obstruction_ratio=0.3",
                  "effects.coupling.focal_length_m=1.0", "effects.coupling.mode_field_radius_m=4.6e-6",
-                 'effects.coupling.target="diffuse"'],
+                 "effects.coupling.fiber_numerical_aperture=0.14", 'effects.coupling.target="diffuse"'],
 }
 # Turbulence degrades the coupling, so it is timed with 'coupling' on too (mean fading: the mode
 # mission runs use).

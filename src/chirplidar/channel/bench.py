@@ -1,11 +1,16 @@
 """The bench / point-target channel of thesis Table 4.6 (TX_model.m propagation).
 
 ``atm.state = off`` is the lab bench: a fiber spool and an attenuator stand in for free space, so only
-``atm.Pattn`` applies. ``atm.state = on`` adds the geometric range equation for a Lambertian target
-(eq. 2.2.3: P_r = P_t rho A_r / (pi R^2)), the fraction of a Gaussian beam of radius
-W(R) = W0 + div R that a disc target of radius Wr intercepts, and the transmissions T_atm (one way,
-field) and T_opt (end to end, field) as power factors T_atm^4 and T_opt^2. Turbulence, speckle and
-coupling belong to the effect modules.
+``atm.Pattn`` applies. ``atm.state = on`` adds, each from the package that owns its physics:
+
+* the fraction of the Gaussian transmit beam (atm.Wo, atm.div; optics.beam_radius_m) that a disc
+  target of radius atm.Wr intercepts; with the 'turbulence' effect the weak-turbulence long-term
+  spread is added in quadrature (atmosphere.long_term_beam_radius);
+* the Lambertian range equation (eq. 2.2.3 in geometric form, target.lambertian_power_fraction),
+  at normal incidence on the bench target;
+* the transmissions T_atm (one way, field: T_atm^4 round trip) and T_opt (end to end, field: T_opt^2).
+
+Coupling into the fiber, turbulence in the pupil and speckle are effects (channel.effects).
 """
 
 from __future__ import annotations
@@ -20,18 +25,37 @@ def round_trip_delay_s(config) -> float:
     return 2.0 * ch.distance_m * ch.group_index / SPEED_OF_LIGHT_M_S
 
 
+def footprint_radius_m(config) -> float:
+    """1/e^2 radius (m) of the transmit beam at the target (atm.dst)."""
+    from ..optics import beam_radius_m
+
+    ch = config.channel
+    w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
+    if "turbulence" in config.effects.enabled and ch.cn2_m_minus_2_3 > 0:
+        from ..atmosphere import gaussian_beam_parameters, long_term_beam_radius
+
+        lam = config.laser.wavelength_m
+        w_lt = long_term_beam_radius(ch.beam_radius_m, lam, ch.distance_m, ch.cn2_m_minus_2_3)
+        w_free = gaussian_beam_parameters(ch.beam_radius_m, lam, ch.distance_m)["w_m"]
+        w = float(np.sqrt(w * w + w_lt * w_lt - w_free * w_free))  # the turbulent excess spread
+    return w
+
+
 def power_transmission(config) -> float:
     """Received / transmitted optical power (W/W)."""
     ch = config.channel
     h = float(db_to_ratio(-ch.extra_attenuation_db))
     if not ch.free_space:
         return h
-    r = ch.distance_m
-    if r <= 0:
+    from ..atmosphere import round_trip_power_transmission
+    from ..optics import beam_fraction_in_disc
+    from ..target import lambertian_power_fraction
+
+    if ch.distance_m <= 0:
         raise ValueError("channel.distance_m (atm.dst) must be > 0 with channel.free_space = on")
-    w_r = ch.beam_radius_m + ch.divergence_half_angle_rad * r
-    intercept = 1.0 - np.exp(-2.0 * ch.target_radius_m**2 / w_r**2)
+    intercept = beam_fraction_in_disc(footprint_radius_m(config), ch.target_radius_m)
     area = 0.25 * np.pi * ch.telescope_diameter_m**2
-    lambertian = ch.target_reflectivity * area / (np.pi * r * r)
-    return float(h * intercept * lambertian * ch.atmospheric_transmission**4
-                 * ch.optical_transmission**2)
+    lambertian = lambertian_power_fraction(ch.target_reflectivity, area, ch.distance_m, 0.0)
+    transmission = (round_trip_power_transmission(t_atm_field=ch.atmospheric_transmission)
+                    * ch.optical_transmission**2)
+    return float(h * intercept * lambertian * transmission)

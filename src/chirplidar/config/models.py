@@ -299,6 +299,8 @@ class CouplingEffect(_Model):
     obstruction_ratio: float = Field(ge=0, lt=1, description="secondary / primary diameter")
     focal_length_m: float = Field(gt=0, description="telescope focal length")
     mode_field_radius_m: float = Field(gt=0, description="fiber mode-field radius (MFD / 2)")
+    fiber_numerical_aperture: float = Field(gt=0, lt=1, description="fiber NA: the focal cone "
+                                            "D / (2 f) beyond it is flagged (thesis: about +-6 deg)")
     target: Literal["diffuse", "specular"] = Field(description="diffuse (Lambertian speckle) or "
                                                    "specular (plane wave) return")
 

@@ -57,6 +57,12 @@ def detection_flags(config, bud, returns=None) -> list[str]:
     flags = []
     if bud.psig_w <= 0 or (returns is not None and not np.any(returns.power_factor > 0)):
         flags.append("no_return")
+    if "coupling" in config.effects.enabled:
+        c = config.effects.coupling
+        # Marginal ray of the focal cone against the fiber's acceptance (Sec. 2.6: d/f <= 0.2).
+        if np.sin(np.arctan(config.channel.telescope_diameter_m / (2 * c.focal_length_m))) \
+                > c.fiber_numerical_aperture:
+            flags.append("fiber_acceptance_exceeded")
     if returns is not None and np.any(np.abs(returns.doppler_hz) >= bud.f_beat_hz):
         # Appendix D: the line at f_R - f_d folds through zero; its sign is lost.
         flags.append("doppler_ambiguous")
