@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._checks import out, real_array
+
 #: WGS 84 angular velocity of the Earth, rad/s (defining parameter, NGA.STND.0036 / TR8350.2).
 #: The IERS mean sidereal rate 7.2921158553e-5 rad/s differs by 1e-7 relative.
 OMEGA_EARTH_RAD_S = 7.292115e-5
@@ -27,25 +29,8 @@ OMEGA_EARTH_RAD_S = 7.292115e-5
 WGS84_A_M = 6378137.0
 
 
-def _finite(name: str, value, dtype=float) -> np.ndarray:
-    if isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    arr = np.asarray(value)
-    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
-                                 or np.issubdtype(arr.dtype, np.floating)):
-        raise ValueError(f"{name} must be real-valued, got dtype {arr.dtype}")
-    arr = arr.astype(dtype)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite (no NaN or inf)")
-    return arr
-
-
-def _out(arr):
-    return float(arr) if np.ndim(arr) == 0 else arr
-
-
 def _vectors(name: str, value) -> np.ndarray:
-    arr = _finite(name, value)
+    arr = real_array(name, value)
     if arr.ndim == 0 or arr.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (3,) or (n_shots, 3), got {arr.shape}")
     return arr
@@ -58,11 +43,11 @@ def doppler_shift_hz(velocity_mps, wavelength_m):
     wavelength_m: vacuum wavelength (m, > 0). Broadcast; float64 (float for scalars). Zero
     velocity gives exactly 0. 1 m/s at 1310 nm is 1.5267 MHz.
     """
-    v = _finite("velocity_mps", velocity_mps)
-    lam = _finite("wavelength_m", wavelength_m)
+    v = real_array("velocity_mps", velocity_mps)
+    lam = real_array("wavelength_m", wavelength_m)
     if np.any(lam <= 0.0):
         raise ValueError("wavelength_m must be > 0")
-    return _out(2.0 * v / lam)
+    return out(2.0 * v / lam)
 
 
 def earth_rotation_velocity_mps(position_m):
@@ -111,7 +96,7 @@ def line_of_sight_velocity_mps(platform_velocity_mps, pointing_unit, target_velo
     except ValueError:
         raise ValueError(f"velocity and pointing shapes do not broadcast: {rel.shape}, "
                          f"{u.shape}") from None
-    return _out(v_los)
+    return out(v_los)
 
 
 class DopplerLines(NamedTuple):
@@ -133,14 +118,14 @@ def homodyne_doppler_spectrum_lines(f_beat_hz, f_doppler_hz) -> DopplerLines:
     no longer tells the range beat (the mean of the two lines is max(f_R, |f_d|)). The sign of f_d
     is never observable in the real output.
     """
-    fr = _finite("f_beat_hz", f_beat_hz)
-    fd = _finite("f_doppler_hz", f_doppler_hz)
+    fr = real_array("f_beat_hz", f_beat_hz)
+    fd = real_array("f_doppler_hz", f_doppler_hz)
     if np.any(fr < 0.0):
         raise ValueError("f_beat_hz must be >= 0")
     fr, fd = np.broadcast_arrays(fr, fd)
     ad = np.abs(fd)
     amb = ad >= fr
-    return DopplerLines(_out(np.abs(fr - ad)), _out(fr + ad),
+    return DopplerLines(out(np.abs(fr - ad)), out(fr + ad),
                         bool(amb) if amb.ndim == 0 else amb)
 
 
@@ -181,10 +166,10 @@ def squaring_recovery(record, fs_hz) -> SquaredRecord:
     y = np.asarray(record)
     if np.iscomplexobj(y):
         raise ValueError("record must be real-valued (the real photocurrent / voltage of App. D)")
-    y = _finite("record", y)
+    y = real_array("record", y)
     if y.ndim == 0 or y.shape[-1] < 2:
         raise ValueError("record must have at least 2 samples along its last axis")
-    fs = _finite("fs_hz", fs_hz)
+    fs = real_array("fs_hz", fs_hz)
     if fs.ndim != 0 or fs <= 0.0:
         raise ValueError("fs_hz must be a scalar > 0")
     n = y.shape[-1]
