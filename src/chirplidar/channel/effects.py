@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config.models import EFFECT_NAMES
 from ..doppler import doppler_shift_hz
-from ..target import speckle_power
+from ..target import speckle_phase, speckle_power
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,7 @@ def _speckle(config, returns: ShotReturns, rng: np.random.Generator) -> ShotRetu
     n = returns.power_factor.size
     sp = config.effects.speckle
     if sp.shift_per_shot_m is None:
-        power, phase = speckle_power(n, sp.cells, rng), rng.uniform(0.0, 2 * np.pi, n)
+        power, phase = speckle_power(n, sp.cells, rng), speckle_phase(n, rng)
     else:
         # Successive shots of the batch over a moving footprint: a correlated field sequence;
         # the homodyne receiver sees the first cell's phase (M = 1 for a single-mode fiber).
