@@ -1,0 +1,608 @@
+"""Per-shot mission results as a CF-1.8 trajectory dataset, written atomically to NetCDF.
+
+Representation
+--------------
+CF-1.8 discrete sampling geometry, ``featureType = "trajectory"``, one trajectory per beam, in the
+*multidimensional array representation* (CF-1.8 Appendix H.4.1): every per-shot variable has dims
+``("trajectory", "obs")``; ``beam(trajectory)`` is the trajectory variable
+(``cf_role = "trajectory_id"``). All beams fire on the same shot clock, so every trajectory has the
+same length and there is no padding. ``time`` and ``delta_time`` are 2-D auxiliary coordinates (as
+CF H.4.1 requires for trajectories), so beams may carry slightly different shot times.
+
+Coordinates (``delta_time``, ``time``, ``latitude``, ``longitude``, ``x``, ``y``, ``beam``) are
+xarray coordinates; xarray writes the CF ``coordinates`` attribute of every data variable from
+them. ``x``/``y`` are polar-stereographic metres of the footprint; every ``(trajectory, obs)`` data
+variable carries ``grid_mapping = "crs"``, and the scalar ``crs`` variable holds
+``pyproj.CRS.from_epsg(epsg).to_cf()`` (``grid_mapping_name = "polar_stereographic"`` for
+EPSG:3413 Greenland and EPSG:3031 Antarctica).
+
+``time`` is kept numeric in memory (float64, ``units = "seconds since <epoch>"``, equal to
+``delta_time``) and :func:`read_netcdf` does not decode it, so a written file reads back
+identical: decoding float seconds to ``datetime64[ns]`` is not exact. ``xarray.decode_cf(ds)``
+gives datetimes.
+
+Missing values
+--------------
+Float variables are written with ``_FillValue = NaN``. CF allows a NaN fill value for floating
+point data; a NaN range, height, power, frequency, SNR or position means "no value for this shot"
+and the ``detected`` flag says why (below threshold, no surface in the beam). Flag variables
+(``detected``, ``surface_type``) and ``beam`` are integers with no fill value: every shot has one.
+``range_measured``, ``range_error`` and ``h_li`` should be NaN where ``detected != 1``; this
+module does not alter data to enforce it.
+
+Mapping to thesis Table 4.10 (and the ``--json`` output of a shot)
+------------------------------------------------------------------
+================== ============== =========================================================
+results variable   thesis name    relation
+================== ============== =========================================================
+range_measured     d_rx           identical (m)
+range_error        d_error        identical, ``range_true - range_measured`` (m)
+range_true         dst            configured / geometric target distance (input, not 4.10)
+snr_db             SNR            identical (dB in the RBW, eq. 2.6.12)
+received_power     Psig           ``received_power = 1e-3 * 10**(Psig / 10)`` (W; Psig dBm)
+beat_frequency     f_beat_hz      ``--json`` key (Hz), not in Table 4.10
+================== ============== =========================================================
+
+The other Table 4.10 outputs (Pchrp, Ptx, Ne, Ns, Nt, d_offset, d_lo, d_hi, d_3dB, d_res, Crx,
+Navg) describe the instrument or the spectrum of one shot and are not stored per shot.
+
+ICESat-2 names used: ``delta_time``, ``latitude``, ``longitude``, ``h_li`` (ATL06 land-ice height
+above the WGS-84 ellipsoid; ``h_li_true`` is the same surface without measurement error).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import re
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+TRAJECTORY_DIM = "trajectory"
+OBS_DIM = "obs"
+GRID_MAPPING_NAME = "crs"
+CONVENTIONS = "CF-1.8"
+FEATURE_TYPE = "trajectory"
+
+# detected: why a shot has (no) return.
+DETECTED_FLAG_VALUES = np.array([0, 1, 2], dtype=np.int8)
+DETECTED_FLAG_MEANINGS = "below_detection_threshold detected no_surface_in_beam"
+
+
+@dataclass(frozen=True)
+class VarSpec:
+    """One row of the per-shot schema."""
+
+    name: str
+    dtype: str                  # "float64", "int8", "int16", "int32"
+    units: str
+    long_name: str
+    standard_name: str | None = None
+    icesat2_name: str | None = None  # ICESat-2 product name where the variable follows one
+    thesis_name: str | None = None   # thesis Table 4.10 (or --json) name it maps to
+    coordinate: bool = False         # an xarray coordinate (CF auxiliary coordinate)
+    nan_allowed: bool = True         # float variables: NaN = no value for this shot
+
+
+# The schema: one table for every per-shot variable (all have dims (trajectory, obs) except
+# ``beam``, the trajectory variable, which has dims (trajectory,)).
+SCHEMA: tuple[VarSpec, ...] = (
+    VarSpec("beam", "int32", "1", "beam (trajectory) identifier", coordinate=True),
+    VarSpec("delta_time", "float64", "s", "elapsed time since the mission epoch", None,
+            "delta_time", coordinate=True, nan_allowed=False),
+    VarSpec("time", "float64", "seconds since <epoch>", "time of the shot", "time",
+            coordinate=True, nan_allowed=False),
+    VarSpec("latitude", "float64", "degrees_north", "latitude of the footprint centre",
+            "latitude", "latitude", coordinate=True),
+    VarSpec("longitude", "float64", "degrees_east", "longitude of the footprint centre",
+            "longitude", "longitude", coordinate=True),
+    VarSpec("x", "float64", "m", "projected x of the footprint centre",
+            "projection_x_coordinate", coordinate=True),
+    VarSpec("y", "float64", "m", "projected y of the footprint centre",
+            "projection_y_coordinate", coordinate=True),
+    VarSpec("platform_x", "float64", "m", "projected x of the platform"),
+    VarSpec("platform_y", "float64", "m", "projected y of the platform"),
+    VarSpec("platform_altitude", "float64", "m",
+            "platform height above the WGS-84 ellipsoid"),
+    VarSpec("off_nadir_angle", "float64", "radian", "beam off-nadir pointing angle"),
+    VarSpec("azimuth_angle", "float64", "radian",
+            "beam pointing azimuth, clockwise from true north"),
+    VarSpec("incidence_angle", "float64", "radian",
+            "angle between the beam and the local surface normal"),
+    VarSpec("range_true", "float64", "m", "true platform-to-surface range along the beam",
+            thesis_name="dst"),
+    VarSpec("range_measured", "float64", "m", "measured range (detected target distance)",
+            thesis_name="d_rx"),
+    VarSpec("range_error", "float64", "m", "range error range_true - range_measured",
+            thesis_name="d_error"),
+    VarSpec("h_li_true", "float64", "m",
+            "true surface height above the WGS-84 ellipsoid at the footprint",
+            "height_above_reference_ellipsoid"),
+    VarSpec("h_li", "float64", "m", "measured surface height above the WGS-84 ellipsoid",
+            "height_above_reference_ellipsoid", "h_li"),
+    VarSpec("snr_db", "float64", "dB", "signal-to-noise ratio in the resolution bandwidth",
+            thesis_name="SNR"),
+    VarSpec("received_power", "float64", "W", "received optical signal power",
+            thesis_name="Psig (dBm)"),
+    VarSpec("beat_frequency", "float64", "Hz", "detected beat frequency",
+            thesis_name="f_beat_hz"),
+    VarSpec("footprint_diameter", "float64", "m", "laser footprint diameter on the surface"),
+    VarSpec("detected", "int8", "1", "surface return detection flag", "status_flag"),
+    VarSpec("surface_type", "int16", "1", "surface material at the footprint"),
+)
+SCHEMA_BY_NAME: dict[str, VarSpec] = {s.name: s for s in SCHEMA}
+_DERIVED = {"time"}  # computed from delta_time, never passed in
+
+
+# --------------------------------------------------------------------------------------------
+# building
+
+
+def _utc_now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat().replace(
+        "+00:00", "Z")
+
+
+def _check_epoch(epoch_iso: str) -> str:
+    if not isinstance(epoch_iso, str) or not epoch_iso.strip():
+        raise ValueError(f"epoch_iso must be an ISO 8601 string, got {epoch_iso!r}")
+    try:
+        _dt.datetime.fromisoformat(epoch_iso.replace("Z", "+00:00"))
+    except ValueError:
+        raise ValueError(f"epoch_iso is not an ISO 8601 date-time: {epoch_iso!r}") from None
+    return epoch_iso
+
+
+def _crs_attrs(epsg) -> dict:
+    if isinstance(epsg, (bool, np.bool_)) or not isinstance(epsg, (int, np.integer)):
+        raise ValueError(f"epsg must be an integer EPSG code, got {epsg!r}")
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+    try:
+        crs = CRS.from_epsg(int(epsg))
+    except CRSError as exc:
+        raise ValueError(f"epsg: unknown EPSG code {epsg!r}: {exc}") from None
+    if not crs.is_projected:
+        raise ValueError(f"epsg must be a projected CRS (e.g. 3413, 3031), got EPSG:{epsg}")
+    attrs = dict(crs.to_cf())
+    attrs["spatial_ref"] = attrs["crs_wkt"]  # GDAL reads this name
+    attrs["epsg_code"] = f"EPSG:{int(epsg)}"
+    attrs["long_name"] = f"coordinate reference system EPSG:{int(epsg)}"
+    return attrs
+
+
+def _as_array(name: str, value, spec: VarSpec, materials: dict[int, str] | None) -> np.ndarray:
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+    if spec.dtype.startswith("float"):
+        if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
+                                     or np.issubdtype(arr.dtype, np.floating)):
+            raise ValueError(f"{name} must be real-valued, got dtype {arr.dtype}")
+        arr = arr.astype(np.float64)
+        if np.any(np.isinf(arr)):
+            raise ValueError(f"{name} must not contain infinity")
+        if not spec.nan_allowed and np.any(np.isnan(arr)):
+            raise ValueError(f"{name} must not contain NaN")
+        return arr
+    # integer / flag variables
+    if arr.dtype == bool:
+        arr = arr.astype(np.int64)
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)) \
+                and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        else:
+            raise ValueError(f"{name} must be integer-valued, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64)
+    info = np.iinfo(spec.dtype)
+    if arr.size and (arr.min() < info.min or arr.max() > info.max):
+        raise ValueError(f"{name} values must fit in {spec.dtype}")
+    if name == "detected":
+        bad = ~np.isin(arr, DETECTED_FLAG_VALUES)
+        if np.any(bad):
+            raise ValueError(f"detected must be one of {DETECTED_FLAG_VALUES.tolist()} "
+                             f"({DETECTED_FLAG_MEANINGS}), got {np.unique(arr[bad]).tolist()}")
+    if name == "surface_type":
+        if not materials:
+            raise ValueError("surface_type given but materials is empty")
+        bad = ~np.isin(arr, list(materials))
+        if np.any(bad):
+            raise ValueError(f"surface_type values {np.unique(arr[bad]).tolist()} are not keys "
+                             f"of materials {sorted(materials)}")
+    return arr.astype(spec.dtype)
+
+
+def _check_materials(materials) -> dict[int, str]:
+    if materials is None:
+        return {}
+    if not isinstance(materials, dict):
+        raise ValueError(f"materials must be a dict[int, str], got {type(materials).__name__}")
+    out: dict[int, str] = {}
+    for k, v in materials.items():
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)):
+            raise ValueError(f"materials keys must be integers, got {k!r}")
+        if not isinstance(v, str) or not v.strip():
+            raise ValueError(f"materials[{k}] must be a non-empty string, got {v!r}")
+        if not np.iinfo(np.int16).min <= int(k) <= np.iinfo(np.int16).max:
+            raise ValueError(f"materials key {k} does not fit in int16")
+        out[int(k)] = v
+    meanings = [re.sub(r"[^0-9A-Za-z_.+\-@]+", "_", v.strip()) for v in out.values()]
+    if len(set(meanings)) != len(meanings):
+        raise ValueError(f"materials names must be distinct, got {list(out.values())}")
+    return out
+
+
+def _to_2d(per_shot: dict) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """(beam ids, arrays shaped (n_beams, n_shots)) from either accepted input layout."""
+    if not isinstance(per_shot, dict):
+        raise ValueError(f"per_shot must be a dict of arrays, got {type(per_shot).__name__}")
+    arrays = {k: np.asarray(v) for k, v in per_shot.items() if k != "beam"}
+    beam = per_shot.get("beam")
+    ndims = {k: a.ndim for k, a in arrays.items()}
+    if arrays and all(n == 1 for n in ndims.values()):
+        # flat layout: a leading shot axis plus a beam index per shot
+        if beam is None:
+            raise ValueError("beam: 1-D per-shot arrays need a per-shot 'beam' index")
+        beam = np.asarray(beam)
+        n = beam.shape[0] if beam.ndim == 1 else -1
+        for k, a in arrays.items():
+            if a.shape != (n,):
+                raise ValueError(f"{k} has shape {a.shape}, expected ({n},) like beam")
+        if beam.ndim != 1 or (beam.size and not np.issubdtype(beam.dtype, np.integer)):
+            raise ValueError(f"beam must be a 1-D integer array, got {beam.dtype} {beam.shape}")
+        ids, counts = np.unique(beam, return_counts=True)
+        if ids.size and np.any(counts != counts[0]):
+            raise ValueError("beam: every beam must have the same number of shots, got "
+                             f"{dict(zip(ids.tolist(), counts.tolist()))}")
+        order = np.argsort(beam, kind="stable")  # shot order within a beam is kept
+        m = int(counts[0]) if ids.size else 0
+        out = {k: a[order].reshape(ids.size, m) for k, a in arrays.items()}
+        return out, ids
+    shapes = {k: a.shape for k, a in arrays.items()}
+    first = next(iter(shapes.values()), None)
+    for k, s in shapes.items():
+        if len(s) != 2:
+            raise ValueError(f"{k} must have shape (n_beams, n_shots), got {s}")
+        if s != first:
+            raise ValueError(f"{k} has shape {s}, expected {first} like the other variables")
+    n_beams = first[0] if first else 0
+    if beam is None:
+        ids = np.arange(n_beams)
+    else:
+        ids = np.asarray(beam)
+        if ids.shape != (n_beams,) or (ids.size and not np.issubdtype(ids.dtype, np.integer)):
+            raise ValueError(f"beam must be {n_beams} integer ids, got {ids.dtype} {ids.shape}")
+    if np.unique(ids).size != ids.size:
+        raise ValueError(f"beam ids must be distinct, got {ids.tolist()}")
+    return arrays, ids
+
+
+def build_dataset(per_shot: dict, *, epsg: int, epoch_iso: str, config_toml: str, seed: int,
+                  software_version: str, materials: dict[int, str] | None = None,
+                  title: str = "chirplidar simulated FM-chirped lidar altimeter shots",
+                  date_created: str | None = None) -> xr.Dataset:
+    """CF-1.8 trajectory dataset (dims ``(trajectory, obs)``) from per-shot arrays.
+
+    ``per_shot`` maps schema names (see :data:`SCHEMA`) to arrays of shape
+    ``(n_beams, n_shots)`` with optional ``beam`` ids of shape ``(n_beams,)`` (default
+    ``0..n_beams-1``), or to 1-D arrays over all shots with a per-shot ``beam`` index (grouped by
+    beam, shot order kept; every beam needs the same number of shots). ``delta_time`` is required;
+    ``time`` is derived from it. Give ``latitude``/``longitude`` or ``x``/``y`` (or both): the
+    missing pair is computed with pyproj. Other schema variables are optional; unknown names
+    raise ValueError. ``date_created`` (ISO 8601) defaults to now (UTC); pass it for
+    reproducible output.
+    """
+    epoch_iso = _check_epoch(epoch_iso)
+    crs_attrs = _crs_attrs(epsg)
+    if not isinstance(config_toml, str):
+        raise ValueError(f"config_toml must be a string, got {type(config_toml).__name__}")
+    try:
+        tomllib.loads(config_toml)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"config_toml is not valid TOML: {exc}") from None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be an integer, got {seed!r}")
+    if not isinstance(software_version, str) or not software_version:
+        raise ValueError(f"software_version must be a non-empty string, got {software_version!r}")
+    materials = _check_materials(materials)
+    if date_created is None:
+        date_created = _utc_now_iso()
+    if not isinstance(per_shot, dict):
+        raise ValueError(f"per_shot must be a dict of arrays, got {type(per_shot).__name__}")
+    for k in per_shot:
+        if k not in SCHEMA_BY_NAME:
+            raise ValueError(f"per_shot: unknown variable {k!r} (not in the results schema)")
+        if k in _DERIVED:
+            raise ValueError(f"per_shot: {k!r} is derived from delta_time; do not pass it")
+    if "delta_time" not in per_shot:
+        raise ValueError("per_shot: delta_time is required")
+
+    arrays, beam_ids = _to_2d(per_shot)
+    data = {k: _as_array(k, v, SCHEMA_BY_NAME[k], materials) for k, v in arrays.items()}
+    beam_ids = _as_array("beam", beam_ids, SCHEMA_BY_NAME["beam"], None)
+    shape = data["delta_time"].shape
+
+    # positions: fill in the missing pair
+    have_ll = "latitude" in data and "longitude" in data
+    have_xy = "x" in data and "y" in data
+    for a, b in (("latitude", "longitude"), ("x", "y")):
+        if (a in data) != (b in data):
+            raise ValueError(f"{a} and {b} must be given together")
+    if not (have_ll or have_xy):
+        raise ValueError("per_shot: latitude/longitude or x/y is required")
+    if not (have_ll and have_xy):
+        from pyproj import Transformer
+        if have_ll:
+            tr = Transformer.from_crs(4326, int(epsg), always_xy=True)
+            x, y = tr.transform(data["longitude"], data["latitude"])
+            data["x"], data["y"] = np.asarray(x, float), np.asarray(y, float)
+        else:
+            tr = Transformer.from_crs(int(epsg), 4326, always_xy=True)
+            lon, lat = tr.transform(data["x"], data["y"])
+            data["longitude"], data["latitude"] = np.asarray(lon, float), np.asarray(lat, float)
+    data["time"] = data["delta_time"].copy()
+
+    dims2 = (TRAJECTORY_DIM, OBS_DIM)
+    coords: dict = {}
+    data_vars: dict = {}
+    for spec in SCHEMA:  # schema order = file order
+        if spec.name == "beam":
+            coords["beam"] = ((TRAJECTORY_DIM,), beam_ids, _attrs(spec, epoch_iso, materials))
+            continue
+        if spec.name not in data:
+            continue
+        arr = data[spec.name].reshape(shape)
+        attrs = _attrs(spec, epoch_iso, materials)
+        if spec.coordinate:
+            coords[spec.name] = (dims2, arr, attrs)
+        else:
+            attrs["grid_mapping"] = GRID_MAPPING_NAME
+            data_vars[spec.name] = (dims2, arr, attrs)
+    data_vars[GRID_MAPPING_NAME] = ((), np.int32(0), crs_attrs)
+
+    source = f"chirplidar {software_version}"
+    attrs = {
+        "Conventions": CONVENTIONS,
+        "featureType": FEATURE_TYPE,
+        "title": title,
+        "institution": source,
+        "source": source,
+        "history": f"{date_created} {source}: simulated mission run (seed {int(seed)})",
+        "date_created": date_created,
+        "mission_epoch": epoch_iso,
+        "epsg_code": f"EPSG:{int(epsg)}",
+        "seed": np.int64(seed),
+        "software_version": software_version,
+        "configuration": config_toml,
+    }
+    ds = xr.Dataset(data_vars, coords=coords, attrs=attrs)
+    check_dataset(ds)
+    return ds
+
+
+def _attrs(spec: VarSpec, epoch_iso: str, materials: dict[int, str]) -> dict:
+    attrs: dict = {"long_name": spec.long_name, "units": spec.units}
+    if spec.name == "time":
+        attrs["units"] = f"seconds since {epoch_iso}"
+        attrs["calendar"] = "standard"
+        attrs["axis"] = "T"
+    if spec.name == "delta_time":
+        attrs["long_name"] = f"elapsed seconds since the mission epoch {epoch_iso}"
+    if spec.standard_name:
+        attrs["standard_name"] = spec.standard_name
+    if spec.name == "beam":
+        attrs["cf_role"] = "trajectory_id"
+    if spec.name == "detected":
+        attrs["flag_values"] = DETECTED_FLAG_VALUES.copy()
+        attrs["flag_meanings"] = DETECTED_FLAG_MEANINGS
+    if spec.name == "surface_type":
+        keys = sorted(materials)
+        attrs["flag_values"] = np.array(keys, dtype=np.int16)
+        attrs["flag_meanings"] = " ".join(
+            re.sub(r"[^0-9A-Za-z_.+\-@]+", "_", materials[k].strip()) for k in keys)
+    return attrs
+
+
+def check_dataset(ds: xr.Dataset) -> None:
+    """Raise ValueError unless every variable has ``units`` and ``long_name`` and the required
+    global attributes are present. The grid-mapping variable (it holds no data) needs no units."""
+    for name, var in ds.variables.items():
+        if "long_name" not in var.attrs:
+            raise ValueError(f"variable {name!r} has no long_name")
+        if "grid_mapping_name" in var.attrs:  # grid mapping container: no data, no units
+            continue
+        if "units" not in var.attrs and "units" not in var.encoding:
+            raise ValueError(f"variable {name!r} has no units")
+        gm = var.attrs.get("grid_mapping")
+        if gm is not None and gm not in ds.variables:
+            raise ValueError(f"variable {name!r}: grid_mapping {gm!r} is not in the dataset")
+    for key in ("Conventions", "featureType", "title", "source", "history", "date_created",
+                "configuration", "seed"):
+        if key not in ds.attrs:
+            raise ValueError(f"global attribute {key!r} is missing")
+    if not any(v.attrs.get("cf_role") == "trajectory_id" for v in ds.variables.values()):
+        raise ValueError("no variable with cf_role = 'trajectory_id'")
+
+
+# --------------------------------------------------------------------------------------------
+# writing / reading
+
+
+def _encoding(ds: xr.Dataset) -> dict:
+    enc = {}
+    for name, var in ds.variables.items():
+        if np.issubdtype(var.dtype, np.floating):
+            spec = SCHEMA_BY_NAME.get(name)
+            e = {"_FillValue": None if spec and not spec.nan_allowed else np.nan}
+            if var.ndim and var.size:
+                e.update(zlib=True, complevel=4)
+            enc[name] = e
+        elif var.ndim or np.issubdtype(var.dtype, np.integer):
+            enc[name] = {"_FillValue": None}
+    return enc
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
+    """Write ``ds`` to ``path`` atomically (temp file in the same directory, fsync, rename).
+
+    An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
+    failure no partial file is left at ``path`` and the temp file is removed. Float variables get
+    ``_FillValue = NaN`` and zlib level 4 compression. Returns the path.
+    """
+    if not isinstance(ds, xr.Dataset):
+        raise ValueError(f"ds must be an xarray.Dataset, got {type(ds).__name__}")
+    path = Path(path)
+    check_dataset(ds)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (pass overwrite=True to replace it)")
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise ValueError(f"path: directory {directory} does not exist")
+    fd, tmp_name = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+        ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=_encoding(ds))
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)  # atomic, never clobbers a file that appeared meanwhile
+            except FileExistsError:
+                raise FileExistsError(
+                    f"{path} exists (pass overwrite=True to replace it)") from None
+            except OSError:  # filesystem without hard links
+                if path.exists():
+                    raise FileExistsError(
+                        f"{path} exists (pass overwrite=True to replace it)") from None
+                os.replace(tmp, path)
+            tmp.unlink(missing_ok=True)
+        _fsync_dir(directory)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_netcdf(path) -> xr.Dataset:
+    """Read a results file into memory (file closed on return), decoded as written.
+
+    ``time`` stays numeric seconds since the epoch (``xarray.decode_cf(ds)`` for datetimes);
+    ``flag_values`` attributes are always 1-D arrays.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} does not exist")
+    with xr.open_dataset(path, engine="netcdf4", decode_times=False,
+                         decode_timedelta=False) as ds:
+        ds = ds.load()
+    for var in ds.variables.values():
+        if "flag_values" in var.attrs:
+            var.attrs["flag_values"] = np.atleast_1d(var.attrs["flag_values"])
+    return ds
+
+
+# --------------------------------------------------------------------------------------------
+# chunked writing
+
+
+_CHUNK_RE = re.compile(r"^chunk_(\d{5})\.nc$")
+
+
+class ChunkWriter:
+    """Write a long run as atomic chunk files ``chunk_00000.nc``, ... in ``path_dir``; merge them.
+
+    A killed run loses no finished chunk: each chunk appears only once fully written.
+    ``completed_chunks()`` lists the finished indices (for ``--resume``).
+    """
+
+    def __init__(self, path_dir):
+        self.path_dir = Path(path_dir)
+        self.path_dir.mkdir(parents=True, exist_ok=True)
+
+    def chunk_path(self, index: int) -> Path:
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)) \
+                or not 0 <= int(index) <= 99999:
+            raise ValueError(f"index must be an integer in 0..99999, got {index!r}")
+        return self.path_dir / f"chunk_{int(index):05d}.nc"
+
+    def write(self, index: int, ds: xr.Dataset, *, overwrite: bool = False) -> Path:
+        """Write chunk ``index`` atomically; an existing chunk raises FileExistsError."""
+        return write_netcdf(ds, self.chunk_path(index), overwrite=overwrite)
+
+    def completed_chunks(self) -> list[int]:
+        """Sorted indices of the chunks on disk (temp files of a killed write are ignored)."""
+        out = []
+        for p in self.path_dir.iterdir():
+            m = _CHUNK_RE.match(p.name)
+            if m and p.is_file():
+                out.append(int(m.group(1)))
+        return sorted(out)
+
+    def remove_temporaries(self) -> list[Path]:
+        """Delete leftover temp files of chunk writes that were killed; returns them."""
+        gone = []
+        for p in self.path_dir.glob(".chunk_*.nc.*.tmp"):
+            p.unlink(missing_ok=True)
+            gone.append(p)
+        return gone
+
+    def merge(self, path, *, overwrite: bool = False, n_chunks: int | None = None) -> xr.Dataset:
+        """Concatenate chunks 0..n-1 along ``obs`` and write ``path`` atomically.
+
+        Chunks must be contiguous from 0 (and exactly ``n_chunks`` when given) with the same
+        beams; global attributes come from chunk 0. Returns the merged dataset.
+        """
+        done = self.completed_chunks()
+        if not done:
+            raise ValueError(f"path_dir: no chunk files in {self.path_dir}")
+        n = len(done) if n_chunks is None else int(n_chunks)
+        missing = sorted(set(range(n)) - set(done))
+        if missing:
+            raise ValueError(f"chunks missing in {self.path_dir}: {missing}")
+        extra = [i for i in done if i >= n]
+        if extra:
+            raise ValueError(f"chunks beyond n_chunks={n} in {self.path_dir}: {extra}")
+        parts = [read_netcdf(self.chunk_path(i)) for i in range(n)]
+        for i, p in enumerate(parts[1:], start=1):
+            if p.sizes.get(TRAJECTORY_DIM) != parts[0].sizes.get(TRAJECTORY_DIM) or \
+                    not np.array_equal(p["beam"].values, parts[0]["beam"].values):
+                raise ValueError(f"chunk {i}: beams differ from chunk 0")
+        merged = xr.concat(parts, dim=OBS_DIM, data_vars="minimal", coords="minimal",
+                           compat="equals", combine_attrs="override", join="exact")
+        write_netcdf(merged, path, overwrite=overwrite)
+        return merged
