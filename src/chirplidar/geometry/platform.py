@@ -1,0 +1,792 @@
+"""Platforms, trajectories, attitude and beam patterns; per-shot platform geometry.
+
+Trajectories
+------------
+* :class:`UavPath` and :class:`AircraftLines` live in the scene (projected) frame of
+  :mod:`chirplidar.geometry.frames` (``frame = "projected"``): x, y grid metres, z ellipsoidal
+  height. Their time origin ``t_s = 0`` is the start of the path. Speeds are along-path speeds in
+  scene-frame metres per second (the map scale factor k, |k - 1| < 4 % over Greenland, is
+  neglected for the speed; ray geometry and ranges correct for it, see ``frames``).
+* :class:`KeplerOrbit` and :class:`TleOrbit` give ECEF states (``frame = "ecef"``).
+
+Time and Earth rotation (KeplerOrbit): ``t_s`` is seconds on the same scale as ``epoch_s``. The
+ECI frame is an inertial frame whose z axis is the Earth's rotation axis; the ECI -> ECEF rotation
+angle is the linear model ``theta(t) = gmst_at_epoch_rad + OMEGA_EARTH_RAD_S * (t - epoch_s)``
+(no precession, nutation, polar motion or UT1-UTC; ECI = ECEF at epoch by default). This is
+adequate for shot geometry over a scene, not for absolute astronomy.
+
+Beams and attitude
+------------------
+Body frame: x forward (horizontal flight direction), y right, z down (nadir). A beam is an
+``(off_nadir_rad, azimuth_rad)`` pair: off-nadir angle from body z, azimuth measured from body x
+toward body y (0 = forward, +pi/2 = right of track). Attitude is applied as intrinsic Z-Y-X
+rotations ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (positive roll = right wing down, so a nadir beam
+looks left; positive pitch = nose up, a nadir beam looks forward; positive yaw = nose right).
+Pointing jitter (optional, seeded generator) tilts each beam by independent normal angles of
+``jitter_rad_rms`` about two axes perpendicular to it (total angular rms ``sqrt(2)`` times that).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import Polygon, box
+
+from chirplidar import _checks
+from chirplidar.geometry import frames
+
+__all__ = [
+    "J2_EARTH",
+    "MU_EARTH_M3_S2",
+    "OMEGA_EARTH_RAD_S",
+    "R_EARTH_M",
+    "AircraftLines",
+    "Attitude",
+    "BeamPattern",
+    "KeplerOrbit",
+    "ShotGeometry",
+    "TleOrbit",
+    "UavPath",
+    "beam_directions",
+    "conical_scan",
+    "lawnmower",
+    "lawnmower_lines",
+    "nadir_beam",
+    "paired_beams_across_track",
+    "shot_geometry",
+    "shot_times",
+]
+
+#: Earth constants (Vallado, Fundamentals of Astrodynamics, 4th ed., Table D-1 / WGS-84).
+MU_EARTH_M3_S2 = 3.986004418e14
+J2_EARTH = 1.08262668e-3
+R_EARTH_M = 6378137.0
+OMEGA_EARTH_RAD_S = 7.292115e-5
+
+
+def _times(name, t_s) -> np.ndarray:
+    t = _checks.real_array(name, t_s)
+    if t.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array of times, got shape {t.shape}")
+    return t
+
+
+def _unit_rows(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / n
+
+
+# --------------------------------------------------------------------------------------------
+# Polyline with constant speed (UAV)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UavPath:
+    """Constant-speed flight along a 3-D polyline in the scene frame.
+
+    waypoints_m : (k, 3) x, y [m] and z [m]: ellipsoidal height (``altitude_mode="absolute"``) or
+        height above ground (``"above_ground"``; then ``ground_height_m`` is required: a callable
+        ``(x, y) -> z`` [m] of arrays, e.g. a terrain's height sampler).
+    speed_mps : along-path speed (measured along the waypoint polyline).
+    """
+
+    waypoints_m: np.ndarray
+    speed_mps: float
+    altitude_mode: str = "absolute"
+    ground_height_m: Callable | None = None
+    frame: str = field(default="projected", init=False)
+
+    def __post_init__(self):
+        w = _checks.real_array("waypoints_m", self.waypoints_m)
+        if w.ndim != 2 or w.shape[1] != 3 or w.shape[0] < 2:
+            raise ValueError(f"waypoints_m must have shape (k >= 2, 3), got {w.shape}")
+        seg = np.diff(w, axis=0)
+        keep = np.concatenate([[True], np.linalg.norm(seg, axis=1) > 0.0])
+        w = w[keep]
+        if w.shape[0] < 2:
+            raise ValueError("waypoints_m must contain at least two distinct points")
+        object.__setattr__(self, "waypoints_m", w)
+        object.__setattr__(self, "speed_mps", _checks.positive("speed_mps", self.speed_mps))
+        if self.altitude_mode not in ("absolute", "above_ground"):
+            raise ValueError(f"altitude_mode must be 'absolute' or 'above_ground', "
+                             f"got {self.altitude_mode!r}")
+        if self.altitude_mode == "above_ground" and not callable(self.ground_height_m):
+            raise ValueError("ground_height_m must be a callable (x, y) -> z when "
+                             "altitude_mode='above_ground'")
+        lengths = np.linalg.norm(np.diff(w, axis=0), axis=1)
+        object.__setattr__(self, "_cum_m", np.concatenate([[0.0], np.cumsum(lengths)]))
+
+    @property
+    def length_m(self) -> float:
+        return float(self._cum_m[-1])
+
+    @property
+    def duration_s(self) -> float:
+        return self.length_m / self.speed_mps
+
+    def _locate(self, t_s):
+        t = _times("t_s", t_s)
+        if np.any((t < 0.0) | (t > self.duration_s * (1 + 1e-12))):
+            raise ValueError(f"t_s must lie in [0, duration_s = {self.duration_s}] s")
+        s = t * self.speed_mps
+        i = np.clip(np.searchsorted(self._cum_m, s, side="right") - 1, 0, len(self._cum_m) - 2)
+        w = self.waypoints_m
+        seg = w[i + 1] - w[i]
+        u = seg / np.linalg.norm(seg, axis=1, keepdims=True)
+        return w[i] + u * (s - self._cum_m[i])[:, None], u * self.speed_mps
+
+    def positions(self, t_s) -> np.ndarray:
+        """(n, 3) scene-frame positions [m] at times ``t_s`` (n,) [s] since the path start."""
+        p, _ = self._locate(t_s)
+        if self.altitude_mode == "above_ground":
+            p = p.copy()
+            p[:, 2] += np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
+        return p
+
+    def velocities(self, t_s) -> np.ndarray:
+        """(n, 3) velocities [m/s]; above ground, v_z adds the terrain slope along track."""
+        p, v = self._locate(t_s)
+        if self.altitude_mode == "above_ground" and len(p):
+            h = 0.5  # m, central-difference step along the horizontal velocity
+            vh = np.linalg.norm(v[:, :2], axis=1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                e = np.where(vh[:, None] > 0, v[:, :2] / vh[:, None], 0.0)
+            g = self.ground_height_m
+            dz = (np.asarray(g(p[:, 0] + h * e[:, 0], p[:, 1] + h * e[:, 1]), float)
+                  - np.asarray(g(p[:, 0] - h * e[:, 0], p[:, 1] - h * e[:, 1]), float)) / (2 * h)
+            v = v.copy()
+            v[:, 2] += dz * vh
+        return v
+
+
+# --------------------------------------------------------------------------------------------
+# Lawnmower survey pattern
+# --------------------------------------------------------------------------------------------
+
+
+def _polygon(polygon_xy) -> Polygon:
+    p = _checks.real_array("polygon", polygon_xy)
+    if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 3:
+        raise ValueError(f"polygon must have shape (k >= 3, 2), got {p.shape}")
+    poly = Polygon(p)
+    if not poly.is_valid:
+        raise ValueError(f"polygon is not a simple valid polygon "
+                         f"({shapely.is_valid_reason(poly)}); self-intersecting outlines are refused")
+    if poly.area <= 0.0:
+        raise ValueError("polygon has zero area")
+    return poly
+
+
+def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
+    """Boustrophedon survey lines covering ``polygon_xy``; list of ``(start_xy, end_xy)``.
+
+    heading_rad : direction of the lines, clockwise from grid north (+y): 0 -> lines along +y,
+        pi/2 -> along +x. Lines are ``line_spacing_m`` apart; the first lies half a spacing inside
+        the polygon's extent. Each line is the centre of a strip of width ``line_spacing_m``; it
+        spans the full along-line extent of the polygon inside that strip, so the strips (flat
+        buffers of half a spacing) cover the polygon. Concave polygons may give several pieces
+        per strip. Successive lines alternate direction.
+    """
+    poly = _polygon(polygon_xy)
+    dx = _checks.positive("line_spacing_m", line_spacing_m)
+    hdg = _checks.real_scalar("heading_rad", heading_rad)
+    # rotate so that lines run along +x': angle of the line direction from +x is pi/2 - heading
+    ang = np.pi / 2 - hdg
+    rot = affinity.rotate(poly, -ang, origin=(0, 0), use_radians=True)
+    xmin, ymin, xmax, ymax = rot.bounds
+    n = max(1, int(np.ceil((ymax - ymin) / dx - 1e-9)))
+    y0 = 0.5 * (ymin + ymax) - 0.5 * (n - 1) * dx  # centre the strips on the extent
+    lines = []
+    c, s = np.cos(ang), np.sin(ang)
+    forward = True
+    for j in range(n):  # loop over survey lines (not shots)
+        yc = y0 + j * dx
+        piece = rot.intersection(box(xmin - 1.0, yc - dx / 2, xmax + 1.0, yc + dx / 2))
+        parts = [g for g in getattr(piece, "geoms", [piece]) if g.area > 0.0]
+        spans = sorted((g.bounds[0], g.bounds[2]) for g in parts)
+        if not spans:
+            continue
+        if not forward:
+            spans = [(b, a) for a, b in reversed(spans)]
+        for a, b in spans:
+            p0 = (a * c - yc * s, a * s + yc * c)
+            p1 = (b * c - yc * s, b * s + yc * c)
+            lines.append((np.array(p0), np.array(p1)))
+        forward = not forward
+    return lines
+
+
+def lawnmower(polygon_xy, line_spacing_m, heading_rad) -> np.ndarray:
+    """Waypoints ``(2 m, 2)`` of a lawnmower covering the polygon: rows 2i, 2i+1 are line i.
+
+    See :func:`lawnmower_lines` for the conventions. A self-intersecting polygon raises
+    ValueError naming ``polygon``.
+    """
+    lines = lawnmower_lines(polygon_xy, line_spacing_m, heading_rad)
+    return np.array([p for ln in lines for p in ln], dtype=float).reshape(-1, 2)
+
+
+# --------------------------------------------------------------------------------------------
+# Aircraft lines joined by Dubins (CSC) turns
+# --------------------------------------------------------------------------------------------
+
+
+def _mod2pi(a):
+    return np.mod(a, 2 * np.pi)
+
+
+def _csc(p1, psi1, p2, psi2, r):
+    """Shortest of LSL, RSR, LSR, RSL from pose 1 to pose 2: list of segment specs."""
+    best = None
+
+    def centre(p, psi, turn):  # turn +1 left, -1 right
+        return p + turn * r * np.array([-np.sin(psi), np.cos(psi)])
+
+    for t1, t2 in ((1, 1), (-1, -1), (1, -1), (-1, 1)):
+        c1, c2 = centre(p1, psi1, t1), centre(p2, psi2, t2)
+        d = c2 - c1
+        dist = np.hypot(*d)
+        if t1 == t2:
+            theta = np.arctan2(d[1], d[0]) if dist > 0 else psi1
+            L = dist
+        else:
+            if dist < 2 * r:
+                continue
+            L = np.sqrt(max(dist * dist - 4 * r * r, 0.0))
+            theta = np.arctan2(d[1], d[0]) + t1 * np.arctan2(2 * r, L)
+        a1 = _mod2pi(t1 * (theta - psi1))
+        a2 = _mod2pi(t2 * (psi2 - theta))
+        total = r * (a1 + a2) + L
+        if best is None or total < best[0] - 1e-9:
+            best = (total, c1, t1, a1, theta, L, c2, t2, a2)
+    _, c1, t1, a1, theta, L, c2, t2, a2 = best
+    q1 = c1 - t1 * r * np.array([-np.sin(theta), np.cos(theta)])  # exit point of arc 1
+    return [("arc", c1, t1, psi1, a1), ("line", q1, theta, L), ("arc", c2, t2, theta, a2)]
+
+
+@dataclass(frozen=True)
+class AircraftLines:
+    """Straight survey lines flown in order, joined by Dubins CSC turns of ``turn_radius_m``.
+
+    lines : sequence of ``(start_xy, end_xy)`` [m] in the scene frame (e.g. from
+        :func:`lawnmower_lines`). Each turn is the shortest of the LSL, RSR, LSR, RSL paths of
+        radius ``turn_radius_m`` from the end pose of one line to the start pose of the next
+        (semicircles when the line spacing equals twice the radius). Flight at constant
+        ``altitude_m`` (ellipsoidal height) and ``speed_mps``; ``t_s = 0`` at the first line start.
+    """
+
+    lines: tuple
+    altitude_m: float
+    speed_mps: float
+    turn_radius_m: float
+    frame: str = field(default="projected", init=False)
+
+    def __post_init__(self):
+        try:
+            arr = np.asarray([[np.asarray(a, float), np.asarray(b, float)] for a, b in self.lines])
+        except (TypeError, ValueError):
+            raise ValueError("lines must be a sequence of (start_xy, end_xy) pairs") from None
+        if arr.ndim != 3 or arr.shape[1:] != (2, 2) or arr.shape[0] < 1:
+            raise ValueError(f"lines must be a non-empty sequence of (start_xy, end_xy) pairs of "
+                             f"2-vectors, got array shape {arr.shape}")
+        arr = _checks.real_array("lines", arr)
+        if np.any(np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1) <= 0):
+            raise ValueError("lines must have distinct start and end points")
+        object.__setattr__(self, "lines", tuple((a.copy(), b.copy()) for a, b in arr))
+        object.__setattr__(self, "altitude_m", _checks.real_scalar("altitude_m", self.altitude_m))
+        object.__setattr__(self, "speed_mps", _checks.positive("speed_mps", self.speed_mps))
+        r = _checks.positive("turn_radius_m", self.turn_radius_m)
+        object.__setattr__(self, "turn_radius_m", r)
+        segs = []  # (kind, line_index, spec)
+        for i, (a, b) in enumerate(arr):
+            psi = float(np.arctan2(*(b - a)[::-1]))
+            segs.append(("line", i, (a, psi, float(np.linalg.norm(b - a)))))
+            if i + 1 < len(arr):
+                a2, b2 = arr[i + 1]
+                psi2 = float(np.arctan2(*(b2 - a2)[::-1]))
+                for spec in _csc(b, psi, a2, psi2, r):
+                    if spec[0] == "arc":
+                        segs.append(("arc", -1, spec[1:]))
+                    else:
+                        segs.append(("line", -1, spec[1:]))
+        m = len(segs)
+        kind = np.zeros(m, dtype=int)  # 0 straight, 1 arc
+        line_idx = np.full(m, -1)
+        p0 = np.zeros((m, 2))
+        psi0 = np.zeros(m)
+        centre = np.zeros((m, 2))
+        turn = np.zeros(m)
+        length = np.zeros(m)
+        for j, (k, li, spec) in enumerate(segs):
+            line_idx[j] = li
+            if k == "line":
+                p0[j], psi0[j], length[j] = spec
+            else:
+                c, t, psi, sweep = spec
+                kind[j], centre[j], turn[j], psi0[j], length[j] = 1, c, t, psi, r * sweep
+                p0[j] = c - t * r * np.array([-np.sin(psi), np.cos(psi)])
+        object.__setattr__(self, "_seg", {"kind": kind, "line": line_idx, "p0": p0, "psi0": psi0,
+                                              "centre": centre, "turn": turn, "length": length,
+                                              "cum": np.concatenate([[0.0], np.cumsum(length)])})
+
+    @property
+    def duration_s(self) -> float:
+        return float(self._seg["cum"][-1] / self.speed_mps)
+
+    def _eval(self, t_s):
+        t = _times("t_s", t_s)
+        if np.any((t < 0.0) | (t > self.duration_s * (1 + 1e-12))):
+            raise ValueError(f"t_s must lie in [0, duration_s = {self.duration_s}] s")
+        g = self._seg
+        s = t * self.speed_mps
+        j = np.clip(np.searchsorted(g["cum"], s, side="right") - 1, 0, len(g["length"]) - 1)
+        ds = s - g["cum"][j]
+        r = self.turn_radius_m
+        arc = g["kind"][j] == 1
+        psi = g["psi0"][j] + np.where(arc, g["turn"][j] * ds / r, 0.0)
+        u = np.stack([np.cos(psi), np.sin(psi)], axis=1)
+        straight_p = g["p0"][j] + u * ds[:, None]
+        arc_p = g["centre"][j] + g["turn"][j][:, None] * r * np.stack([np.sin(psi), -np.cos(psi)],
+                                                                       axis=1)
+        xy = np.where(arc[:, None], arc_p, straight_p)
+        pos = np.column_stack([xy, np.full(len(t), self.altitude_m)])
+        vel = np.column_stack([u * self.speed_mps, np.zeros(len(t))])
+        return pos, vel, g["line"][j]
+
+    def positions(self, t_s) -> np.ndarray:
+        """(n, 3) scene-frame positions [m] at ``t_s`` (n,) [s]."""
+        return self._eval(t_s)[0]
+
+    def velocities(self, t_s) -> np.ndarray:
+        """(n, 3) velocities [m/s] (horizontal, tangent to the path)."""
+        return self._eval(t_s)[1]
+
+    def line_index(self, t_s) -> np.ndarray:
+        """(n,) index of the survey line flown at ``t_s``; -1 during turns."""
+        return self._eval(t_s)[2]
+
+
+# --------------------------------------------------------------------------------------------
+# Orbits
+# --------------------------------------------------------------------------------------------
+
+
+def _rot3(theta):
+    """Rotation matrices R3(theta) (n, 3, 3): frame rotation about z, v' = R v."""
+    c, s = np.cos(theta), np.sin(theta)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
+def _eci_to_ecef(r, v, theta):
+    """Rotate ECI states by the Earth rotation angle theta (n,) (Earth rotating at OMEGA)."""
+    R = _rot3(theta)
+    r_e = np.einsum("nij,nj->ni", R, r)
+    w = np.array([0.0, 0.0, OMEGA_EARTH_RAD_S])
+    v_e = np.einsum("nij,nj->ni", R, v) - np.cross(w, r_e)
+    return r_e, v_e
+
+
+@dataclass(frozen=True)
+class KeplerOrbit:
+    """Keplerian orbit with J2 secular drift of RAAN and argument of perigee.
+
+    Elements at ``epoch_s``: semi-major axis [m], eccentricity, inclination, RAAN, argument of
+    perigee, mean anomaly [rad]. Secular rates (Vallado, Fundamentals of Astrodynamics, eqs. for
+    the J2 secular effects, 9-41 and 9-42 in the 4th ed.), with ``n = sqrt(mu / a**3)``,
+    ``p = a (1 - e**2)``::
+
+        dRAAN/dt  = -3/2 n J2 (R_E / p)**2 cos(i)
+        dargp/dt  =  3/4 n J2 (R_E / p)**2 (4 - 5 sin(i)**2)
+
+    The mean anomaly advances at the unperturbed ``n`` (the J2 correction to the mean motion is
+    not modelled). ``j2=False`` switches the drift off (pure two-body). Velocities are the exact
+    time derivative of the modelled positions (including the drift terms). ECI -> ECEF uses the
+    linear Earth-rotation model of the module docstring.
+    """
+
+    semi_major_axis_m: float
+    eccentricity: float
+    inclination_rad: float
+    raan_rad: float
+    arg_perigee_rad: float
+    mean_anomaly_rad: float
+    epoch_s: float
+    j2: bool = True
+    gmst_at_epoch_rad: float = 0.0
+    frame: str = field(default="ecef", init=False)
+
+    def __post_init__(self):
+        a = _checks.positive("semi_major_axis_m", self.semi_major_axis_m)
+        e = _checks.real_scalar("eccentricity", self.eccentricity)
+        if not 0.0 <= e < 1.0:
+            raise ValueError(f"eccentricity must lie in [0, 1) (closed orbit), got {e}")
+        if a * (1.0 - e) <= R_EARTH_M:
+            raise ValueError(f"semi_major_axis_m and eccentricity put the perigee radius "
+                             f"{a * (1 - e):.0f} m inside the Earth (R_E = {R_EARTH_M} m)")
+        for name in ("inclination_rad", "raan_rad", "arg_perigee_rad", "mean_anomaly_rad",
+                     "epoch_s", "gmst_at_epoch_rad"):
+            object.__setattr__(self, name, _checks.real_scalar(name, getattr(self, name)))
+        if not 0.0 <= self.inclination_rad <= np.pi:
+            raise ValueError("inclination_rad must lie in [0, pi]")
+        object.__setattr__(self, "semi_major_axis_m", a)
+        object.__setattr__(self, "eccentricity", e)
+
+    @property
+    def mean_motion_rad_s(self) -> float:
+        return float(np.sqrt(MU_EARTH_M3_S2 / self.semi_major_axis_m ** 3))
+
+    @property
+    def period_s(self) -> float:
+        """Keplerian (anomalistic, two-body) period 2 pi sqrt(a^3 / mu) [s]."""
+        return 2 * np.pi / self.mean_motion_rad_s
+
+    @property
+    def _k(self) -> float:
+        if not self.j2:
+            return 0.0
+        p = self.semi_major_axis_m * (1 - self.eccentricity ** 2)
+        return self.mean_motion_rad_s * J2_EARTH * (R_EARTH_M / p) ** 2
+
+    @property
+    def raan_rate_rad_s(self) -> float:
+        return -1.5 * self._k * np.cos(self.inclination_rad)
+
+    @property
+    def arg_perigee_rate_rad_s(self) -> float:
+        return 0.75 * self._k * (4 - 5 * np.sin(self.inclination_rad) ** 2)
+
+    def states_eci(self, t_s):
+        """ECI positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
+        t = _times("t_s", t_s)
+        dt = t - self.epoch_s
+        a, e, n = self.semi_major_axis_m, self.eccentricity, self.mean_motion_rad_s
+        M = self.mean_anomaly_rad + n * dt
+        E = M + e * np.sin(M)
+        for _ in range(50):  # Newton on Kepler's equation, all shots at once
+            dE = (E - e * np.sin(E) - M) / (1 - e * np.cos(E))
+            E = E - dE
+            if np.all(np.abs(dE) < 1e-14):
+                break
+        cE, sE = np.cos(E), np.sin(E)
+        q = np.sqrt(1 - e * e)
+        r_norm = a * (1 - e * cE)
+        x, y = a * (cE - e), a * q * sE
+        vf = np.sqrt(MU_EARTH_M3_S2 * a) / r_norm
+        wdot = self.arg_perigee_rate_rad_s
+        vx, vy = -vf * sE - wdot * y, vf * q * cE + wdot * x
+        raan = self.raan_rad + self.raan_rate_rad_s * dt
+        argp = self.arg_perigee_rad + wdot * dt
+        i = self.inclination_rad
+        cO, sO, cw, sw, ci, si = np.cos(raan), np.sin(raan), np.cos(argp), np.sin(argp), \
+            np.cos(i), np.sin(i)
+        P = np.stack([cO * cw - sO * sw * ci, sO * cw + cO * sw * ci, sw * si], axis=-1)
+        Q = np.stack([-cO * sw - sO * cw * ci, -sO * sw + cO * cw * ci, cw * si], axis=-1)
+        r = x[:, None] * P + y[:, None] * Q
+        v = vx[:, None] * P + vy[:, None] * Q
+        v = v + np.cross(np.array([0.0, 0.0, self.raan_rate_rad_s]), r)
+        return r, v
+
+    def earth_rotation_angle_rad(self, t_s) -> np.ndarray:
+        return self.gmst_at_epoch_rad + OMEGA_EARTH_RAD_S * (_times("t_s", t_s) - self.epoch_s)
+
+    def states(self, t_s):
+        """ECEF positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
+        r, v = self.states_eci(t_s)
+        return _eci_to_ecef(r, v, self.earth_rotation_angle_rad(t_s))
+
+    def positions(self, t_s) -> np.ndarray:
+        return self.states(t_s)[0]
+
+    def velocities(self, t_s) -> np.ndarray:
+        return self.states(t_s)[1]
+
+
+@dataclass(frozen=True)
+class TleOrbit:
+    """SGP4 orbit from a two-line element set (needs ``pip install chirplidar[orbit]``).
+
+    ``t_s`` is seconds since the TLE epoch. SGP4 gives TEME states; they are rotated to ECEF by
+    GMST (IAU-82, sgp4's ``gstime``) at UT1 ~= UTC, without polar motion (metre-level).
+    """
+
+    line1: str
+    line2: str
+    frame: str = field(default="ecef", init=False)
+
+    def __post_init__(self):
+        try:
+            from sgp4.api import Satrec
+        except ImportError:
+            raise ImportError("TleOrbit needs the sgp4 package: install it with "
+                              "`pip install chirplidar[orbit]`") from None
+        sat = Satrec.twoline2rv(str(self.line1), str(self.line2))
+        if sat.error:
+            raise ValueError(f"line1/line2 are not a valid TLE (sgp4 error {sat.error})")
+        object.__setattr__(self, "_sat", sat)
+
+    def states(self, t_s):
+        from sgp4.propagation import gstime
+        t = _times("t_s", t_s)
+        sat = self._sat
+        jd = np.full(t.shape, sat.jdsatepoch)
+        fr = sat.jdsatepochF + t / 86400.0
+        err, r, v = sat.sgp4_array(jd, fr)
+        if np.any(err != 0):
+            raise ValueError(f"t_s: SGP4 propagation failed (error codes {sorted(set(err[err != 0]))})")
+        r, v = np.asarray(r) * 1e3, np.asarray(v) * 1e3
+        gmst = np.array([gstime(a + b) for a, b in zip(jd, fr)]) if len(t) else np.zeros(0)
+        return _eci_to_ecef(r.reshape(-1, 3), v.reshape(-1, 3), gmst)
+
+    def positions(self, t_s):
+        return self.states(t_s)[0]
+
+    def velocities(self, t_s):
+        return self.states(t_s)[1]
+
+
+# --------------------------------------------------------------------------------------------
+# Attitude and beams
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Roll, pitch, yaw [rad]: scalars or (n,) arrays (one per shot)."""
+
+    roll_rad: object = 0.0
+    pitch_rad: object = 0.0
+    yaw_rad: object = 0.0
+
+    def matrices(self, n: int) -> np.ndarray:
+        """(n, 3, 3) rotation body -> level frame, R = Rz(yaw) Ry(pitch) Rx(roll)."""
+        vals = []
+        for name in ("roll_rad", "pitch_rad", "yaw_rad"):
+            a = _checks.real_array(name, getattr(self, name))
+            if a.ndim > 1 or (a.ndim == 1 and a.shape[0] != n):
+                raise ValueError(f"{name} must be a scalar or have shape ({n},), got {a.shape}")
+            vals.append(np.broadcast_to(a, (n,)))
+        r, p, y = vals
+        cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+        return np.stack([
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+            np.stack([-sp, cp * sr, cp * cr], -1)], -2)
+
+
+@dataclass(frozen=True)
+class BeamPattern:
+    """Beams as (off_nadir_rad, azimuth_rad) pairs; azimuths advance at ``scan_rate_rad_s``.
+
+    azimuth(t) = azimuth_rad + scan_rate_rad_s * t_s  (0 for a fixed pattern).
+    """
+
+    off_nadir_rad: np.ndarray
+    azimuth_rad: np.ndarray
+    scan_rate_rad_s: float = 0.0
+
+    def __post_init__(self):
+        o = _checks.real_array("off_nadir_rad", self.off_nadir_rad)
+        a = _checks.real_array("azimuth_rad", self.azimuth_rad)
+        if o.ndim != 1 or a.shape != o.shape or o.size == 0:
+            raise ValueError(f"off_nadir_rad and azimuth_rad must be equal-length non-empty 1-D "
+                             f"arrays, got {o.shape} and {a.shape}")
+        if np.any((o < 0) | (o >= np.pi / 2)):
+            raise ValueError("off_nadir_rad must lie in [0, pi/2)")
+        object.__setattr__(self, "off_nadir_rad", o)
+        object.__setattr__(self, "azimuth_rad", a)
+        object.__setattr__(self, "scan_rate_rad_s",
+                           _checks.real_scalar("scan_rate_rad_s", self.scan_rate_rad_s))
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.off_nadir_rad.size)
+
+
+def nadir_beam() -> BeamPattern:
+    return BeamPattern(np.array([0.0]), np.array([0.0]))
+
+
+def paired_beams_across_track(pair_spacing_rad, within_pair_rad) -> BeamPattern:
+    """Three pairs of beams across track (ICESat-2-like), ordered left to right.
+
+    Pair centres at across-track angles -pair_spacing_rad, 0, +pair_spacing_rad; the two beams of
+    a pair at +-within_pair_rad / 2 about the centre (ICESat-2 from ~496 km: pairs 3.3 km apart,
+    beams 90 m apart -> pair_spacing_rad ~ 6.65e-3, within_pair_rad ~ 1.8e-4).
+    """
+    ps = _checks.positive("pair_spacing_rad", pair_spacing_rad)
+    wp = _checks.positive("within_pair_rad", within_pair_rad)
+    if wp >= ps:
+        raise ValueError("within_pair_rad must be smaller than pair_spacing_rad")
+    across = np.array([c + s * wp / 2 for c in (-ps, 0.0, ps) for s in (-1, 1)])
+    return BeamPattern(np.abs(across), np.where(across >= 0, np.pi / 2, -np.pi / 2))
+
+
+def conical_scan(off_nadir_rad, scan_rate_rad_s, phase_rad=0.0) -> BeamPattern:
+    """One beam on a cone of half angle ``off_nadir_rad`` whose azimuth advances with time."""
+    _checks.positive("off_nadir_rad", off_nadir_rad)
+    rate = _checks.real_scalar("scan_rate_rad_s", scan_rate_rad_s)
+    if rate == 0.0:
+        raise ValueError("scan_rate_rad_s must be non-zero for a conical scan")
+    return BeamPattern(np.array([float(off_nadir_rad)]), np.array([float(phase_rad)]), rate)
+
+
+def beam_directions(velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_rms=0.0,
+                    rng=None) -> np.ndarray:
+    """Unit beam directions (n, n_beams, 3) in the frame of ``velocity_unit`` and ``up``.
+
+    velocity_unit, up : (n, 3) flight direction and local up (any common Cartesian frame, e.g.
+        ECEF with the geodetic up, or a local true-metre frame with up = (0, 0, 1)). The body x
+        axis is the part of the velocity perpendicular to ``up``.
+    attitude : :class:`Attitude` (or None for level flight); beams : :class:`BeamPattern`.
+    t_s : (n,) shot times [s], required for a scanning pattern.
+    jitter_rad_rms, rng : pointing jitter per axis [rad rms] and its ``numpy.random.Generator``;
+        no random numbers are drawn when ``jitter_rad_rms == 0``.
+    """
+    v = _checks.real_array("velocity_unit", velocity_unit)
+    u = _checks.real_array("up", up)
+    if v.ndim != 2 or v.shape[1] != 3 or u.shape != v.shape:
+        raise ValueError(f"velocity_unit and up must both have shape (n, 3), got {v.shape} "
+                         f"and {u.shape}")
+    if not isinstance(beams, BeamPattern):
+        raise ValueError("beams must be a BeamPattern")  # noqa: TRY004 (project rule: ValueError)
+    n, b = v.shape[0], beams.n_beams
+    sigma = _checks.non_negative("jitter_rad_rms", jitter_rad_rms)
+    if sigma > 0 and not isinstance(rng, np.random.Generator):
+        raise ValueError("rng must be a numpy.random.Generator when jitter_rad_rms > 0")
+    if n == 0:
+        return np.zeros((0, b, 3))
+    up_n = np.linalg.norm(u, axis=1)
+    if np.any(up_n == 0):
+        raise ValueError("up must be non-zero vectors")
+    u = u / up_n[:, None]
+    fwd = v - np.sum(v * u, axis=1, keepdims=True) * u
+    fn = np.linalg.norm(fwd, axis=1)
+    if np.any(fn <= 1e-9 * np.maximum(np.linalg.norm(v, axis=1), 1e-300)) or np.any(fn == 0):
+        raise ValueError("velocity_unit must have a horizontal component (vertical or zero "
+                         "velocity leaves the flight direction undefined)")
+    fwd = fwd / fn[:, None]
+    down = -u
+    right = np.cross(down, fwd)
+    az = np.broadcast_to(beams.azimuth_rad, (n, b))
+    if beams.scan_rate_rad_s != 0.0:
+        if t_s is None:
+            raise ValueError("t_s is required for a scanning beam pattern")
+        t = _times("t_s", t_s)
+        if t.shape != (n,):
+            raise ValueError(f"t_s must have shape ({n},), got {t.shape}")
+        az = az + beams.scan_rate_rad_s * t[:, None]
+    th = np.broadcast_to(beams.off_nadir_rad, (n, b))
+    d_body = np.stack([np.sin(th) * np.cos(az), np.sin(th) * np.sin(az), np.cos(th)], axis=-1)
+    if attitude is not None:
+        if not isinstance(attitude, Attitude):
+            raise ValueError("attitude must be an Attitude or None")
+        d_body = np.einsum("nij,nbj->nbi", attitude.matrices(n), d_body)
+    basis = np.stack([fwd, right, down], axis=1)  # (n, 3 body axes, 3 world comps)
+    d = np.einsum("nbi,nij->nbj", d_body, basis)
+    if sigma > 0:
+        g = rng.normal(0.0, sigma, size=(n, b, 2))
+        ref = np.where(np.abs(d[..., 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]),
+                       np.array([1.0, 0.0, 0.0]))
+        e1 = _unit_rows(np.cross(d, ref))
+        e2 = np.cross(d, e1)
+        delta = g[..., :1] * e1 + g[..., 1:] * e2
+        ang = np.linalg.norm(delta, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dirn = np.where(ang > 0, delta / ang, 0.0)
+        d = np.cos(ang) * d + np.sin(ang) * dirn
+    return _unit_rows(d)
+
+
+# --------------------------------------------------------------------------------------------
+# Shots
+# --------------------------------------------------------------------------------------------
+
+
+def shot_times(start_s, stop_s, prf_hz) -> np.ndarray:
+    """Shot times ``start_s + i / prf_hz`` in ``[start_s, stop_s)`` (n,) [s]; empty if none."""
+    a = _checks.real_scalar("start_s", start_s)
+    b = _checks.real_scalar("stop_s", stop_s)
+    prf = _checks.positive("prf_hz", prf_hz)
+    if b < a:
+        raise ValueError(f"stop_s ({b}) must not be before start_s ({a})")
+    n = int(np.ceil((b - a) * prf - 1e-9)) if b > a else 0
+    return a + np.arange(max(n, 0)) / prf
+
+
+@dataclass(frozen=True)
+class ShotGeometry:
+    """Per-shot platform state and beams.
+
+    t_s (n,), position_m (n, 3) and velocity_mps (n, 3) in the platform's native ``frame``
+    ("projected" scene frame or "ecef"); direction (n, n_beams, 3) unit beam directions in that
+    frame's true-metre sense (ECEF, or for "projected" the local true frame with axes grid x,
+    grid y, up); rays: :class:`frames.ProjectedRays` (n, n_beams) in the scene frame, or None
+    when no ``epsg`` was given.
+    """
+
+    t_s: np.ndarray
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    direction: np.ndarray
+    frame: str
+    rays: frames.ProjectedRays | None = None
+
+
+def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=0.0, rng=None,
+                  target_height_m=None, entry_height_m=None) -> ShotGeometry:
+    """Platform position, velocity and beam directions for each shot, and scene-frame rays.
+
+    path : UavPath, AircraftLines, KeplerOrbit or TleOrbit. t_s : (n,) shot times [s] (may be
+    empty: every output then has a zero-length shot axis). With ``epsg`` the rays are converted
+    to the scene frame. ``target_height_m`` (ellipsoidal height below the lowest terrain) selects
+    the exact conversion via ECEF and is required for ECEF platforms, which should also pass
+    ``entry_height_m`` (above the highest terrain; must lie below the platform to have an
+    effect), see :func:`frames.rays_projected_from_ecef`. Without it, scene-frame platforms use
+    the flat approximation of :func:`frames.rays_projected_local` (error at 20 deg off nadir:
+    1 cm from 1 km, 28 cm from 5 km above ground).
+    """
+    t = _times("t_s", t_s)
+    n, nb = t.shape[0], beams.n_beams if isinstance(beams, BeamPattern) else None
+    if nb is None:
+        raise ValueError("beams must be a BeamPattern")
+    frame = getattr(path, "frame", None)
+    if frame not in ("projected", "ecef"):
+        raise ValueError("path must be a UavPath, AircraftLines, KeplerOrbit or TleOrbit")
+    if n == 0:
+        empty3 = np.zeros((0, 3))
+        rays = None
+        if epsg is not None:
+            frames._epsg(epsg)
+            rays = frames.ProjectedRays(np.zeros((0, nb, 3)), np.zeros((0, nb, 3)),
+                                        np.zeros((0, nb)), np.zeros((0, nb)),
+                                        np.zeros((0, nb), dtype=bool))
+        return ShotGeometry(t, empty3, empty3.copy(), np.zeros((0, nb, 3)), frame, rays)
+    pos, vel = path.positions(t), path.velocities(t)
+    if frame == "projected":
+        up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), pos.shape)
+    else:
+        lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
+        up = frames.local_up_ecef(lat, lon)
+    vu = _unit_rows(vel)
+    d = beam_directions(vu, up, attitude, beams, t_s=t, jitter_rad_rms=jitter_rad_rms, rng=rng)
+    rays = None
+    if epsg is not None:
+        origin = np.broadcast_to(pos[:, None, :], d.shape)
+        if frame == "projected":
+            rays = frames.rays_projected_local(origin, d, epsg, target_height_m=target_height_m,
+                                               entry_height_m=entry_height_m)
+        else:
+            if target_height_m is None:
+                raise ValueError("target_height_m is required to convert ECEF rays to the scene "
+                                 "frame")
+            rays = frames.rays_projected_from_ecef(origin, d, epsg,
+                                                   target_height_m=target_height_m,
+                                                   entry_height_m=entry_height_m)
+    return ShotGeometry(t, pos, vel, d, frame, rays)

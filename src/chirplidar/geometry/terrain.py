@@ -1,0 +1,479 @@
+"""Terrain: triangle meshes in projected metres (z up) with a surface material per face.
+
+Sources of terrain:
+
+* ``Terrain.from_mesh_file``: OBJ / STL / PLY / GLB through trimesh, one material for all faces;
+* ``Terrain.from_heightfield``: a regular grid (two triangles per cell, vectorised); NaN heights
+  (DEM no-data) leave their cells out, counted in ``Terrain.holes``;
+* ``Terrain.from_dem``: a GeoTIFF (or any raster rasterio reads) via the optional ``dem`` extra;
+* ``synthetic_ice_sheet``: a Vialov flow-line profile with crevasses, sastrugi, melt ponds and rock
+  outcrops, all seeded by a ``numpy.random.Generator``;
+* ``flat_plane`` / ``sloped_plane``: test surfaces with closed-form ranges.
+
+Materials are integer codes into ``Terrain.material_names``; the default table is
+``MATERIAL_NAMES`` (names of :data:`chirplidar.target.materials.MATERIALS`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from ..target.materials import MATERIALS
+
+# Code <-> name table of surface materials. The order is fixed here (not taken from the order of
+# MATERIALS) so that codes stay stable if materials.py is reordered or extended.
+MATERIAL_NAMES: tuple[str, ...] = (
+    "snow", "firn", "blue_ice", "open_water", "rock", "snow_fresh", "thesis_target")
+_missing = [n for n in MATERIAL_NAMES if n not in MATERIALS]
+if _missing:  # pragma: no cover - guards against a renamed material
+    raise ImportError(f"terrain material table names unknown materials: {_missing}")
+MATERIAL_CODES: dict[str, int] = {name: code for code, name in enumerate(MATERIAL_NAMES)}
+
+
+def material_code(name: str) -> int:
+    """Integer code of a material name of ``MATERIAL_NAMES``; ValueError if unknown."""
+    try:
+        return MATERIAL_CODES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIAL_NAMES)}") \
+            from None
+
+
+def material_name(code: int) -> str:
+    """Material name of an integer code of ``MATERIAL_NAMES``; ValueError if out of range."""
+    c = int(code)
+    if not 0 <= c < len(MATERIAL_NAMES):
+        raise ValueError(f"material code {code!r} out of range 0..{len(MATERIAL_NAMES) - 1}")
+    return MATERIAL_NAMES[c]
+
+
+@dataclass(frozen=True, eq=False)
+class Terrain:
+    """A triangle mesh (projected metres, z up) with one material code per face.
+
+    mesh: ``trimesh.Trimesh`` with at least one face and finite vertices.
+    face_materials: int array (n_faces,), codes into ``material_names``.
+    material_names: tuple of material names (default ``MATERIAL_NAMES``).
+    holes: number of grid cells left out for no-data (0 for meshes from files).
+    """
+
+    mesh: trimesh.Trimesh
+    face_materials: np.ndarray
+    material_names: tuple[str, ...] = MATERIAL_NAMES
+    holes: int = 0
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        if not isinstance(self.mesh, trimesh.Trimesh):
+            raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(self.mesh).__name__}")  # noqa: TRY004
+        n_faces = len(self.mesh.faces)
+        if n_faces == 0:
+            raise ValueError("mesh has no faces")
+        if not np.all(np.isfinite(self.mesh.vertices)):
+            raise ValueError("mesh vertices must be finite (NaN/inf found)")
+        codes = np.asarray(self.face_materials)
+        if codes.shape != (n_faces,) or not np.issubdtype(codes.dtype, np.integer):
+            raise ValueError(f"face_materials must be an integer array of shape ({n_faces},), "
+                             f"got {codes.dtype} {codes.shape}")
+        names = tuple(self.material_names)
+        if codes.min() < 0 or codes.max() >= len(names):
+            raise ValueError(f"face_materials codes must lie in 0..{len(names) - 1}")
+        unknown = [n for n in names if n not in MATERIALS]
+        if unknown:
+            raise ValueError(f"material_names has unknown materials {unknown}")
+        if int(self.holes) < 0:
+            raise ValueError(f"holes must be >= 0, got {self.holes!r}")
+        codes = codes.astype(np.int32, copy=True)
+        codes.setflags(write=False)
+        object.__setattr__(self, "face_materials", codes)
+        object.__setattr__(self, "material_names", names)
+        object.__setattr__(self, "holes", int(self.holes))
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.mesh.faces)
+
+    def face_material_names(self) -> np.ndarray:
+        """Material name of every face (object array)."""
+        return np.asarray(self.material_names, dtype=object)[self.face_materials]
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_mesh_file(cls, path, material: str = "snow") -> Terrain:
+        """Load OBJ/STL/PLY/GLB (anything trimesh reads); every face gets ``material``.
+
+        Missing file: FileNotFoundError naming it. Unreadable file, a scene without geometry, or a
+        mesh without (non-degenerate) faces: ValueError naming the file. Degenerate (zero-area)
+        faces are dropped.
+        """
+        path = os.fspath(path)
+        code = material_code(material)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"terrain mesh file not found: {path}")
+        try:
+            loaded = trimesh.load(path)
+        except Exception as exc:  # trimesh raises many kinds for bad files
+            raise ValueError(f"cannot read terrain mesh file {path}: {exc}") from exc
+        if isinstance(loaded, trimesh.Scene):
+            meshes = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
+            if not meshes:
+                raise ValueError(f"terrain mesh file {path} holds a scene with no mesh geometry")
+            loaded = loaded.to_mesh()
+        if not isinstance(loaded, trimesh.Trimesh):
+            raise ValueError(  # noqa: TRY004 (project rule: ValueError)
+                f"terrain mesh file {path} holds no triangle mesh "
+                f"(got {type(loaded).__name__})")
+        if len(loaded.faces) == 0:
+            raise ValueError(f"terrain mesh file {path} has no faces")
+        if not np.all(np.isfinite(loaded.vertices)):
+            raise ValueError(f"terrain mesh file {path} has non-finite vertices")
+        keep = loaded.nondegenerate_faces()
+        if not np.any(keep):
+            raise ValueError(f"terrain mesh file {path} has only degenerate (zero-area) faces")
+        mesh = trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
+                               faces=np.asarray(loaded.faces)[keep], process=False)
+        mesh.remove_unreferenced_vertices()
+        return cls(mesh, np.full(len(mesh.faces), code, dtype=np.int32))
+
+    @classmethod
+    def from_heightfield(cls, x_m, y_m, z_m, material_codes,
+                         material_names: tuple[str, ...] = MATERIAL_NAMES) -> Terrain:
+        """Grid heights to a mesh: two triangles per cell, vectorised.
+
+        x_m (nx,), y_m (ny,): strictly monotonic node coordinates (m). z_m (ny, nx): heights (m);
+        NaN marks no-data, and every cell touching a NaN node is left out (no triangles); the
+        number of such cells is ``holes``. material_codes: integer codes, either per node
+        (ny, nx) -- a triangle takes the majority code of its three nodes (first node on a
+        three-way tie) -- or per cell (ny-1, nx-1). Triangles are wound counter-clockwise seen
+        from above, so face normals point up (+z) for increasing x and y.
+        """
+        x = np.asarray(x_m, dtype=np.float64)
+        y = np.asarray(y_m, dtype=np.float64)
+        z = np.asarray(z_m, dtype=np.float64)
+        for name, v in (("x_m", x), ("y_m", y)):
+            if v.ndim != 1 or v.size < 2:
+                raise ValueError(f"{name} must be a 1-D array of at least 2 nodes, got {v.shape}")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be finite")
+            d = np.diff(v)
+            if not (np.all(d > 0) or np.all(d < 0)):
+                raise ValueError(f"{name} must be strictly monotonic")
+        ny, nx = y.size, x.size
+        if z.shape != (ny, nx):
+            raise ValueError(f"z_m must have shape (ny, nx) = ({ny}, {nx}), got {z.shape}")
+        if np.any(np.isinf(z)):
+            raise ValueError("z_m must not contain inf (use NaN for no-data)")
+        nan = np.isnan(z)
+        if nan.all():
+            raise ValueError("z_m is all NaN (no-data): no terrain to build")
+        codes = np.asarray(material_codes)
+        if not np.issubdtype(codes.dtype, np.integer):
+            raise ValueError(f"material_codes must be integers, got {codes.dtype}")
+        if codes.shape not in ((ny, nx), (ny - 1, nx - 1)):
+            raise ValueError(f"material_codes must have shape ({ny}, {nx}) or "
+                             f"({ny - 1}, {nx - 1}), got {codes.shape}")
+        if codes.min() < 0 or codes.max() >= len(material_names):
+            raise ValueError(f"material_codes must lie in 0..{len(material_names) - 1}")
+
+        # Orient so that the grid increases in x and y (keeps normals up).
+        if x[1] < x[0]:
+            x, z, codes = x[::-1], z[:, ::-1], codes[:, ::-1]
+        if y[1] < y[0]:
+            y, z, codes = y[::-1], z[::-1, :], codes[::-1, :]
+        nan = np.isnan(z)
+
+        xx, yy = np.meshgrid(x, y)
+        verts = np.column_stack([xx.ravel(), yy.ravel(), z.ravel()])
+        idx = np.arange(ny * nx).reshape(ny, nx)
+        v00, v10 = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()   # (j, i), (j, i+1)
+        v01, v11 = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()     # (j+1, i), (j+1, i+1)
+        cell_ok = ~(nan[:-1, :-1] | nan[:-1, 1:] | nan[1:, :-1] | nan[1:, 1:]).ravel()
+        holes = int(np.count_nonzero(~cell_ok))
+        if not cell_ok.any():
+            raise ValueError("z_m has no cell with four valid (non-NaN) corners")
+        t1 = np.column_stack([v00, v10, v11])[cell_ok]
+        t2 = np.column_stack([v00, v11, v01])[cell_ok]
+        faces = np.empty((2 * t1.shape[0], 3), dtype=np.int64)
+        faces[0::2], faces[1::2] = t1, t2
+
+        if codes.shape == (ny - 1, nx - 1):
+            face_codes = np.repeat(codes.ravel()[cell_ok], 2)
+        else:
+            c = codes.ravel()[faces]
+            a, b, d = c[:, 0], c[:, 1], c[:, 2]
+            face_codes = np.where((a == b) | (a == d), a, np.where(b == d, b, a))
+
+        used = np.zeros(ny * nx, dtype=bool)
+        used[faces] = True
+        remap = np.cumsum(used) - 1
+        mesh = trimesh.Trimesh(vertices=verts[used], faces=remap[faces], process=False)
+        return cls(mesh, face_codes.astype(np.int32), tuple(material_names), holes)
+
+    @classmethod
+    def from_dem(cls, path, material: str = "snow", band: int = 1) -> Terrain:
+        """Load a DEM raster (GeoTIFF, ...) with rasterio, honouring its nodata value.
+
+        Node coordinates are the pixel centres in the raster's CRS (projected metres expected;
+        rotated/sheared transforms are refused). Requires the ``dem`` extra.
+        """
+        try:
+            import rasterio
+        except ImportError as exc:
+            raise ImportError("Terrain.from_dem needs rasterio: pip install chirplidar[dem]") \
+                from exc
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"DEM file not found: {path}")
+        code = material_code(material)
+        try:
+            with rasterio.open(path) as src:
+                z = src.read(band).astype(np.float64)
+                nodata = src.nodata
+                tr = src.transform
+                if src.crs is not None and src.crs.is_geographic:
+                    raise ValueError(f"DEM {path} is in geographic coordinates; "
+                                     "reproject to a projected CRS in metres")
+        except ValueError:
+            raise
+        except Exception as exc:
+            raise ValueError(f"cannot read DEM file {path}: {exc}") from exc
+        if tr.b != 0 or tr.d != 0:
+            raise ValueError(f"DEM {path} has a rotated geotransform; not supported")
+        if nodata is not None:
+            z[z == nodata] = np.nan
+        z[~np.isfinite(z)] = np.nan
+        if np.isnan(z).all():
+            raise ValueError(f"DEM {path} is all no-data")
+        ny, nx = z.shape
+        x = tr.c + tr.a * (np.arange(nx) + 0.5)
+        y = tr.f + tr.e * (np.arange(ny) + 0.5)
+        try:
+            return cls.from_heightfield(x, y, z, np.full(z.shape, code, dtype=np.int32))
+        except ValueError as exc:
+            raise ValueError(f"DEM {path}: {exc}") from exc
+
+
+# ---------------------------------------------------------------------- test surfaces
+def _extent(extent_m):
+    try:
+        x0, x1, y0, y1 = (float(v) for v in extent_m)
+    except (TypeError, ValueError):
+        raise ValueError(f"extent_m must be (x0, x1, y0, y1) in metres, got {extent_m!r}") \
+            from None
+    if not all(np.isfinite([x0, x1, y0, y1])) or x1 <= x0 or y1 <= y0:
+        raise ValueError(f"extent_m must be finite with x0 < x1 and y0 < y1, got {extent_m!r}")
+    return x0, x1, y0, y1
+
+
+def _grid(extent_m, resolution_m):
+    x0, x1, y0, y1 = _extent(extent_m)
+    res = float(resolution_m)
+    if not np.isfinite(res) or res <= 0:
+        raise ValueError(f"resolution_m must be > 0, got {resolution_m!r}")
+    nx = int(np.ceil((x1 - x0) / res - 1e-9)) + 1
+    ny = int(np.ceil((y1 - y0) / res - 1e-9)) + 1
+    if nx * ny > 50_000_000:
+        raise ValueError(f"resolution_m={res} gives {nx}x{ny} nodes (> 5e7); coarsen it")
+    return np.linspace(x0, x1, max(nx, 2)), np.linspace(y0, y1, max(ny, 2))
+
+
+def flat_plane(height_m, extent_m, resolution_m, material: str = "snow") -> Terrain:
+    """Horizontal plane z = height_m over extent_m = (x0, x1, y0, y1), grid step resolution_m."""
+    h = float(height_m)
+    if not np.isfinite(h):
+        raise ValueError(f"height_m must be finite, got {height_m!r}")
+    x, y = _grid(extent_m, resolution_m)
+    z = np.full((y.size, x.size), h)
+    return Terrain.from_heightfield(x, y, z, np.full(z.shape, material_code(material), np.int32))
+
+
+def sloped_plane(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
+                 material: str = "snow", origin_m=(0.0, 0.0)) -> Terrain:
+    """Plane through (origin_m, height_m) rising at ``slope_rad`` towards ``azimuth_rad``.
+
+    azimuth_rad is measured from +x towards +y (mathematical convention, not a compass bearing):
+    z = height_m + tan(slope_rad) * ((x - x0) cos(az) + (y - y0) sin(az)).
+    """
+    s, az, h = float(slope_rad), float(azimuth_rad), float(height_m)
+    if not np.isfinite([s, az, h]).all() or not 0 <= s < np.pi / 2:
+        raise ValueError(f"slope_rad must lie in [0, pi/2) and azimuth_rad, height_m be finite; "
+                         f"got {slope_rad!r}, {azimuth_rad!r}, {height_m!r}")
+    x, y = _grid(extent_m, resolution_m)
+    xx, yy = np.meshgrid(x - origin_m[0], y - origin_m[1])
+    z = h + np.tan(s) * (xx * np.cos(az) + yy * np.sin(az))
+    return Terrain.from_heightfield(x, y, z, np.full(z.shape, material_code(material), np.int32))
+
+
+# ---------------------------------------------------------------------- synthetic ice sheet
+def vialov_height(x_m, divide_height_m, margin_distance_m, divide_x_m=0.0):
+    """Vialov (1958) steady ice-sheet profile, as in Cuffey & Paterson (2010) eq. 8.34.
+
+    h(x) = H [1 - (|x - x_d| / L)^(4/3)]^(3/8) for |x - x_d| <= L, else 0 (Glen n = 3, flat bed,
+    uniform accumulation). H = divide_height_m, L = margin_distance_m, x_d = divide_x_m.
+    """
+    H = float(divide_height_m)
+    L = float(margin_distance_m)
+    if not (np.isfinite(H) and H > 0):
+        raise ValueError(f"divide_height_m must be > 0, got {divide_height_m!r}")
+    if not (np.isfinite(L) and L > 0):
+        raise ValueError(f"margin distance must be > 0, got {margin_distance_m!r}")
+    xi = np.clip(np.abs(np.asarray(x_m, dtype=np.float64) - divide_x_m) / L, 0.0, 1.0)
+    return H * (1.0 - xi ** (4.0 / 3.0)) ** (3.0 / 8.0)
+
+
+SYNTHETIC_FEATURES = ("crevasses", "sastrugi", "ponds", "outcrops")
+
+
+def _smooth_noise(rng, shape, dx, corr_along_m, corr_across_m, azimuth_rad):
+    """Zero-mean unit-rms Gaussian random field with an anisotropic Gaussian correlation.
+
+    FFT filtering of white noise; correlation lengths corr_along_m (along azimuth) and
+    corr_across_m (across), grid step dx (m).
+    """
+    ny, nx = shape
+    white = rng.standard_normal(shape)
+    kx = 2 * np.pi * np.fft.fftfreq(nx, d=dx)[None, :]
+    ky = 2 * np.pi * np.fft.fftfreq(ny, d=dx)[:, None]
+    ka = kx * np.cos(azimuth_rad) + ky * np.sin(azimuth_rad)
+    kc = -kx * np.sin(azimuth_rad) + ky * np.cos(azimuth_rad)
+    filt = np.exp(-0.25 * ((ka * corr_along_m) ** 2 + (kc * corr_across_m) ** 2))
+    field_ = np.fft.ifft2(np.fft.fft2(white) * filt).real
+    rms = np.sqrt(np.mean(field_ ** 2))
+    return field_ / rms if rms > 0 else field_
+
+
+def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
+                        divide_height_m: float, margin_x_m: float, divide_x_m: float = 0.0,
+                        features=SYNTHETIC_FEATURES,
+                        ela_fraction: float = 0.6,
+                        crevasse_band=(0.80, 0.95), crevasse_spacing_m: float = 40.0,
+                        crevasse_depth_m: float = 8.0,
+                        sastrugi_rms_m: float = 0.1, sastrugi_length_m=(8.0, 1.5),
+                        sastrugi_azimuth_rad: float = 0.0,
+                        pond_band=(0.6, 0.85), n_ponds: int = 6,
+                        pond_radius_m=(100.0, 400.0), pond_depth_m: float = 1.5,
+                        pond_max_basin_m: float = 10.0,
+                        n_outcrops: int = 4, outcrop_height_m=(20.0, 60.0),
+                        outcrop_radius_m=(60.0, 200.0)) -> Terrain:
+    """A simple, physically shaped ice-sheet margin for survey simulations.
+
+    Surface (x is the flow-line coordinate, the sheet is extruded along y):
+
+    * **Vialov profile** (Vialov 1958; Cuffey & Paterson 2010, eq. 8.34),
+      h(x) = H [1 - (|x - x_d|/L)^(4/3)]^(3/8), H = ``divide_height_m`` at the divide x_d =
+      ``divide_x_m``, zero at the margin x = ``margin_x_m`` (L = |margin_x_m - divide_x_m|);
+      beyond the margin the ground is ice-free at 0 m (material ``rock``). Scale: km to 1000 km.
+    * **Materials by zone**: ``snow`` up-glacier of the equilibrium line at
+      ``ela_fraction`` * L from the divide, ``blue_ice`` below it (ablation zone).
+    * **Crevasse field** (``"crevasses"``): parallel troughs transverse to flow in the band
+      ``crevasse_band`` (fractions of L), z -= depth * max(0, cos(2 pi s / spacing + phase))^8
+      with s the along-flow coordinate rotated by a seeded angle (+-10 deg) and a seeded smooth
+      phase jitter across flow; spacing ``crevasse_spacing_m`` (tens of m), depth
+      ``crevasse_depth_m`` (m). Needs resolution_m <~ spacing / 4 to be resolved.
+    * **Sastrugi** (``"sastrugi"``): anisotropic Gaussian random relief, rms ``sastrugi_rms_m``
+      (cm-dm), correlation lengths ``sastrugi_length_m`` = (along wind, across wind) (m) with the
+      wind along ``sastrugi_azimuth_rad``; on snow only. Sub-resolution lengths act as per-node
+      noise.
+    * **Melt ponds / open water** (``"ponds"``): ``n_ponds`` seeded centres in ``pond_band``
+      (fractions of L, ablation zone); each pond is a Gaussian basin of seeded radius r in
+      ``pond_radius_m`` (hundreds of m) and depth ``pond_depth_m`` + min(4 * slope * r,
+      ``pond_max_basin_m``) (deep enough to hold water on gentle regional slopes; on steep
+      slopes only the downhill part floods), filled flat up to the lowest surface point
+      of the ring at 0.7-0.8 r: a flat ``open_water`` patch at the local minimum.
+    * **Rock outcrops** (``"outcrops"``): ``n_outcrops`` Gaussian hills (seeded heights in
+      ``outcrop_height_m``, radii in ``outcrop_radius_m``) in the last 10 % of L before the
+      margin; where the hill rises above the ice surface the surface is ``rock``.
+
+    Every feature draws from its own child generator (``rng.spawn``), so disabling one does not
+    change the random stream of the others; a disabled feature draws nothing.
+    ``resolution_m`` is the grid step: the mesh has 2 (nx-1)(ny-1) triangles.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")  # noqa: TRY004
+    feats = set(features)
+    unknown = feats - set(SYNTHETIC_FEATURES)
+    if unknown:
+        raise ValueError(f"features: unknown {sorted(unknown)}; known: {SYNTHETIC_FEATURES}")
+    L = abs(float(margin_x_m) - float(divide_x_m))
+    if not np.isfinite(L) or L <= 0:
+        raise ValueError(f"margin_x_m must differ from divide_x_m, got {margin_x_m!r}")
+    if not 0 < ela_fraction < 1:
+        raise ValueError(f"ela_fraction must lie in (0, 1), got {ela_fraction!r}")
+    x, y = _grid(extent_m, resolution_m)
+    dx = float(x[1] - x[0])
+    xx, yy = np.meshgrid(x, y)
+    sgn = 1.0 if margin_x_m > divide_x_m else -1.0
+    xi = sgn * (xx - divide_x_m) / L          # 0 at the divide, 1 at the margin (signed)
+    ice = vialov_height(xx, divide_height_m, L, divide_x_m)
+    ice[xi < -1.0] = 0.0
+    ice_free = np.abs(xi) >= 1.0
+    z = ice.copy()
+    codes = np.where(np.abs(xi) < ela_fraction, MATERIAL_CODES["snow"],
+                     MATERIAL_CODES["blue_ice"]).astype(np.int32)
+    codes[ice_free] = MATERIAL_CODES["rock"]
+    gens = rng.spawn(len(SYNTHETIC_FEATURES))
+    g = dict(zip(SYNTHETIC_FEATURES, gens))
+    y_span = float(y[-1] - y[0])
+
+    if "crevasses" in feats and crevasse_depth_m > 0:
+        r = g["crevasses"]
+        ang = r.uniform(-np.deg2rad(10), np.deg2rad(10))
+        k = r.uniform(0.5, 2.0, 3) * 2 * np.pi / max(y_span, dx)
+        ph = r.uniform(0, 2 * np.pi, 3)
+        jitter = 0.6 * np.sum(np.sin(k[:, None, None] * yy[None] + ph[:, None, None]), axis=0)
+        s = (xx - divide_x_m) * sgn * np.cos(ang) + yy * np.sin(ang)
+        trough = np.maximum(0.0, np.cos(2 * np.pi * s / crevasse_spacing_m + jitter)) ** 8
+        band = (np.abs(xi) >= crevasse_band[0]) & (np.abs(xi) <= crevasse_band[1])
+        z = z - np.where(band, crevasse_depth_m * trough, 0.0)
+
+    if "sastrugi" in feats and sastrugi_rms_m > 0:
+        noise = _smooth_noise(g["sastrugi"], z.shape, dx, sastrugi_length_m[0],
+                              sastrugi_length_m[1], sastrugi_azimuth_rad)
+        z = z + np.where(codes == MATERIAL_CODES["snow"], sastrugi_rms_m * noise, 0.0)
+
+    if "ponds" in feats and n_ponds > 0:
+        r = g["ponds"]
+        cxi = r.uniform(pond_band[0], pond_band[1], n_ponds)
+        cx = divide_x_m + sgn * cxi * L
+        cy = r.uniform(y[0], y[-1], n_ponds)
+        rad = r.uniform(pond_radius_m[0], pond_radius_m[1], n_ponds)
+        # regional surface slope at each centre: the basin must be deeper than the slope
+        # drop across it to hold water (real lakes sit in bed-driven surface depressions)
+        slope = np.abs(vialov_height(cx + rad, divide_height_m, L, divide_x_m)
+                       - vialov_height(cx - rad, divide_height_m, L, divide_x_m)) / (2 * rad)
+        for cxk, cyk, rk, gk in zip(cx, cy, rad, slope):   # a handful of ponds, not a ray loop
+            d2 = ((xx - cxk) ** 2 + (yy - cyk) ** 2) / rk ** 2
+            near = d2 < 4.0
+            if not near.any():
+                continue
+            basin = pond_depth_m + min(4.0 * gk * rk, pond_max_basin_m)
+            z = z - basin * np.exp(-d2) * near
+            inside = d2 <= 0.64
+            ring = inside & (d2 >= 0.49)
+            if not ring.any():
+                continue
+            level = float(np.min(z[ring]))
+            wet = inside & (z < level) & ~ice_free
+            z[wet] = level
+            codes[wet] = MATERIAL_CODES["open_water"]
+
+    if "outcrops" in feats and n_outcrops > 0:
+        r = g["outcrops"]
+        oxi = r.uniform(0.9, 1.0, n_outcrops)
+        ox = divide_x_m + sgn * oxi * L
+        oy = r.uniform(y[0], y[-1], n_outcrops)
+        oh = r.uniform(outcrop_height_m[0], outcrop_height_m[1], n_outcrops)
+        orad = r.uniform(outcrop_radius_m[0], outcrop_radius_m[1], n_outcrops)
+        rock = np.zeros_like(z)
+        for oxk, oyk, ohk, ork in zip(ox, oy, oh, orad):   # a few hills, not a ray loop
+            d2 = ((xx - oxk) ** 2 + (yy - oyk) ** 2) / ork ** 2
+            rock = np.maximum(rock, ohk * np.exp(-d2))
+        above = rock > z
+        z = np.where(above, rock, z)
+        codes[above] = MATERIAL_CODES["rock"]
+
+    return Terrain.from_heightfield(x, y, z, codes)
