@@ -212,3 +212,12 @@ def test_console_script_help():
                          text=True, check=False)
     assert res.returncode == 0
     assert "shot" in res.stdout and "null" in res.stdout
+
+
+def test_bench_raycast_json(capsys):
+    # Small terrain for speed; the benchmark's default is one million triangles.
+    assert main(["bench", "--what", "raycast", "--json", "--triangles", "20000", "--rays", "2000",
+                 "--repeats", "1"]) == 0
+    rec = strict_json(capsys.readouterr().out)
+    assert set(rec) == {"project_rays_per_s", "embree_rays_per_s", "ratio"}
+    assert all(v > 0 for v in rec.values())

@@ -197,6 +197,19 @@ def cmd_bench(args) -> int:
 
     if args.repeats < 1:
         raise UsageError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.what == "raycast":
+        from .geometry import bench_raycast
+
+        res = bench_raycast(args.triangles, args.rays, repeats=max(1, min(args.repeats, 5)))
+        if args.json:
+            print(_dump_json({k: res[k] for k in ("project_rays_per_s", "embree_rays_per_s", "ratio")}))
+        else:
+            print(f"ray casting, {res['n_triangles']} triangles, {res['n_rays']} rays "
+                  f"(scene build {res['build_s']:.2f} s, not timed):")
+            print(f"  chirplidar cast_rays  {res['project_rays_per_s']:.3g} rays/s")
+            print(f"  raw embree            {res['embree_rays_per_s']:.3g} rays/s")
+            print(f"  ratio                 {res['ratio']:.2f}  (goal >= 0.7)")
+        return 0
     if args.what == "effects":
         res = bench_effects(args.mission, args.set or [], repeats=args.repeats)
         if args.json:
@@ -283,16 +296,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sweep, subparser=p)
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
-    p.add_argument("--what", choices=("shot", "effects"), default="shot",
+    p.add_argument("--what", choices=("shot", "effects", "raycast"), default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
-                        "and off")
+                        "and off; raycast: our ray casting against raw embree")
+    p.add_argument("--triangles", type=int, default=1_000_000,
+                   help="raycast: terrain triangles (default 1,000,000)")
+    p.add_argument("--rays", type=int, default=200_000, help="raycast: rays per timing")
     p.add_argument("--mission", default=None, metavar="MISSION",
                    help="mission file (default missions/thesis_bench.toml)")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
     p.add_argument("--repeats", type=int, default=11, help="timed runs; the median is reported")
     p.add_argument("--json", action="store_true",
-                   help='print {"rf_shot_s", "fft_s", "ratio"} (shot) or {"none_s", "<effect>_s", ...}')
+                   help='print {"rf_shot_s", "fft_s", "ratio"} (shot), {"none_s", "<effect>_s", '
+                        '...} (effects) or {"project_rays_per_s", "embree_rays_per_s", "ratio"}')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")
