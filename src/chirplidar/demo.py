@@ -22,7 +22,7 @@ import numpy as np
 
 from .analysis import sensitivity_at
 
-from .units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
+from .units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, ratio_db
 
 PNG_NAME = "fig5_7_sensitivity.png"
 CSV_NAME = "fig5_7_sensitivity.csv"
@@ -91,9 +91,9 @@ def load_measured() -> dict[str, tuple[np.ndarray, np.ndarray]]:
 def shot_noise_snr_db(p_dbm, quantum_efficiency: float = 0.85, wavelength_m: float = 1.31e-6,
                       bandwidth_hz: float = 30e3):
     """Shot-noise-limited coherent SNR (dB), thesis eq. 2.6.2: SNR = eta P / (2 h nu B)."""
-    p_w = 10.0 ** ((np.asarray(p_dbm, dtype=float) - 30.0) / 10.0)
+    p_w = db_to_ratio(np.asarray(p_dbm, dtype=float) - 30.0)
     h_nu = PLANCK_J_S * SPEED_OF_LIGHT_M_S / wavelength_m
-    return 10.0 * np.log10(quantum_efficiency * p_w / (2.0 * h_nu * bandwidth_hz))
+    return ratio_db(quantum_efficiency * p_w / (2.0 * h_nu * bandwidth_hz))
 
 
 def shot_noise_power_dbm(snr_db: float, quantum_efficiency: float = 0.85,

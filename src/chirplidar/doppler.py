@@ -21,12 +21,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._checks import out, real_array
+from .units import OMEGA_EARTH_RAD_S, WGS84_A_M  # noqa: F401  (re-exported)
 
-#: WGS 84 angular velocity of the Earth, rad/s (defining parameter, NGA.STND.0036 / TR8350.2).
-#: The IERS mean sidereal rate 7.2921158553e-5 rad/s differs by 1e-7 relative.
-OMEGA_EARTH_RAD_S = 7.292115e-5
-#: WGS 84 semi-major axis (equatorial radius), m.
-WGS84_A_M = 6378137.0
 
 
 def _vectors(name: str, value) -> np.ndarray:

@@ -12,6 +12,12 @@ PLANCK_J_S = 6.626_070_15e-34
 ELEMENTARY_CHARGE_C = 1.602_176_634e-19
 BOLTZMANN_J_K = 1.380_649e-23
 
+# The Earth: WGS-84 defining parameters (NGA.STND.0036 / NIMA TR8350.2). The IERS mean sidereal
+# rate 7.2921158553e-5 rad/s differs from the WGS-84 rotation rate by 1e-7 relative.
+WGS84_A_M = 6_378_137.0                 # semi-major (equatorial) axis
+WGS84_F = 1.0 / 298.257_223_563         # flattening
+OMEGA_EARTH_RAD_S = 7.292_115e-5        # angular velocity
+
 
 def db_to_ratio(db):
     return 10.0 ** (np.asarray(db, dtype=float) / 10.0)

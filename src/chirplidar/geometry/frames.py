@@ -62,6 +62,7 @@ import numpy as np
 from pyproj import Proj, Transformer
 
 from chirplidar import _checks
+from chirplidar.units import WGS84_A_M, WGS84_F
 
 __all__ = [
     "SUPPORTED_EPSG",
@@ -87,9 +88,7 @@ __all__ = [
 
 #: Projected scene frames the project supports: Greenland and Antarctica polar stereographic.
 SUPPORTED_EPSG = (3413, 3031)
-#: WGS-84 defining constants (NIMA TR8350.2).
-WGS84_A_M = 6378137.0
-WGS84_F = 1.0 / 298.257223563
+#: WGS-84 derived constants (the defining ones are in chirplidar.units).
 WGS84_B_M = WGS84_A_M * (1.0 - WGS84_F)
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 

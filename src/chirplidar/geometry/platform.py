@@ -37,7 +37,9 @@ from shapely import affinity
 from shapely.geometry import Polygon, box
 
 from chirplidar import _checks
+from chirplidar.doppler import earth_rotation_velocity_mps
 from chirplidar.geometry import frames
+from chirplidar.units import OMEGA_EARTH_RAD_S, WGS84_A_M
 
 __all__ = [
     "J2_EARTH",
@@ -61,11 +63,11 @@ __all__ = [
     "shot_times",
 ]
 
-#: Earth constants (Vallado, Fundamentals of Astrodynamics, 4th ed., Table D-1 / WGS-84).
+#: Earth constants (Vallado, Fundamentals of Astrodynamics, 4th ed., Table D-1 / WGS-84); the
+#: equatorial radius and rotation rate are the WGS-84 ones of chirplidar.units.
 MU_EARTH_M3_S2 = 3.986004418e14
 J2_EARTH = 1.08262668e-3
-R_EARTH_M = 6378137.0
-OMEGA_EARTH_RAD_S = 7.292115e-5
+R_EARTH_M = WGS84_A_M
 
 
 def _times(name, t_s) -> np.ndarray:
@@ -388,8 +390,7 @@ def _eci_to_ecef(r, v, theta):
     """Rotate ECI states by the Earth rotation angle theta (n,) (Earth rotating at OMEGA)."""
     R = _rot3(theta)
     r_e = np.einsum("nij,nj->ni", R, r)
-    w = np.array([0.0, 0.0, OMEGA_EARTH_RAD_S])
-    v_e = np.einsum("nij,nj->ni", R, v) - np.cross(w, r_e)
+    v_e = np.einsum("nij,nj->ni", R, v) - earth_rotation_velocity_mps(r_e)
     return r_e, v_e
 
 

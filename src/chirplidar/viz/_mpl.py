@@ -16,6 +16,8 @@ if "matplotlib.pyplot" not in sys.modules and not os.environ.get("MPLBACKEND"):
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..units import power_dbm  # noqa: E402
+
 
 def finite_or_nan(values) -> np.ndarray:
     """Float array with every non-finite value (±inf, e.g. dB of zero power) replaced by NaN.
@@ -28,12 +30,8 @@ def finite_or_nan(values) -> np.ndarray:
 
 
 def dbm_from_w(power_w) -> np.ndarray:
-    """dBm of power in W; zero or negative power gives NaN (a gap in a plot), never a warning."""
-    p = np.asarray(power_w, dtype=float)
-    out = np.full(p.shape, np.nan)
-    pos = p > 0
-    out[pos] = 10.0 * np.log10(p[pos]) + 30.0
-    return out
+    """dBm of power in W for plotting: zero power (-inf dBm) becomes NaN, a gap in the line."""
+    return finite_or_nan(power_dbm(power_w))
 
 
 def save(fig, path: str | Path) -> Path:
