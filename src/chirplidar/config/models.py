@@ -263,6 +263,10 @@ class Heterodyne(_Model):
         "IF demodulation that knows the LO phase")
 
 
+# Heterodyne IF band-pass half-width as a multiple of the chirp's top frequency (its band must fit
+# below Nyquist; the tiers filter with it).
+IF_HALF_WIDTH_FACTOR = 1.25
+
 EFFECT_NAMES = ("phase_noise", "speckle", "doppler", "coupling", "turbulence")
 
 
@@ -411,7 +415,7 @@ class MissionConfig(_Model):
                 f"than simulation.duration_s (sims.T = {self.simulation.duration_s:g} s): no whole "
                 "chirp fits in the record")
         if (self.system.receiver == "coherent" and self.system.coherent_mode == "heterodyne"):
-            top = self.balanced.lo_offset_hz + 1.25 * f_top
+            top = self.balanced.lo_offset_hz + IF_HALF_WIDTH_FACTOR * f_top
             if top >= nyq:
                 raise ValueError(
                     f"heterodyne IF band: balanced.lo_offset_hz + 1.25*(F2+F0) = {top:g} Hz is at or above "

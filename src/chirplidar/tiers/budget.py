@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config.models import IF_HALF_WIDTH_FACTOR
 from ..channel.bench import power_transmission, round_trip_delay_s
 from ..transmitter.mzm import mzm_mean_power_transmission
 from ..units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, responsivity_a_per_w
@@ -98,3 +99,8 @@ def responsivities(config, nu_hz: float) -> dict[str, float]:
 def coupler_field_transmission(config) -> float:
     """Field factor of the receiver coupler's excess loss (applies to LO and signal alike)."""
     return float(np.sqrt(db_to_ratio(-config.balanced.coupler_excess_loss_db)))
+
+
+def if_half_width_hz(config, bud: Budget) -> float:
+    """Half-width of the heterodyne IF band-pass around f_LO (the validated band)."""
+    return IF_HALF_WIDTH_FACTOR * bud.train.f_stop_hz

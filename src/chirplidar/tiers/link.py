@@ -20,7 +20,7 @@ from ..processing.spectrum import PeakResult
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_fundamental_field, mzm_power_fundamental
-from .budget import coupler_field_transmission, make_budget, responsivities
+from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
 from ..channel.effects import channel_returns
 from .common import assemble_outputs, detection_flags, optimal_phase
 
@@ -232,8 +232,6 @@ def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
     noise_psd = 2.0 * noise.total * mix * 2.0
     snr = tone / (noise_psd * config.processing.rbw_hz)
     if h.demodulation == "envelope":
-        from .rf import if_half_width_hz
-
         # <a^2> over the record: (1 + cos(2 alpha) J0(2 beta w)) / 2 (Jacobi-Anger).
         mean_a2 = 0.5 * (1 + np.cos(2 * alpha) * np.mean(j0(2 * beta * w_sig)))
         if_power = 0.5 * base**2 * mean_a2

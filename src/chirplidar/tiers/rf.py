@@ -22,9 +22,11 @@ from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..transmitter import mzm_field, wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
-from .budget import Budget, coupler_field_transmission, make_budget, responsivities
+from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_budget,
+                     responsivities)
 from ..channel.effects import channel_returns, effect_rng
-from .common import assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz
+from .common import (assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz,
+                     pn_peak)
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
@@ -195,7 +197,8 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
         kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs / 2)
     if sysc.modulation == "pn_code":
-        result = _pn_correlate(records["main"], train, t_lo, fs, load, proc)
+        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
+        result = pn_peak(records["main"], train.unit(t_lo), fs, load, proc)
     elif "main" in records:
         result = analyze_records(records["main"], fs, load, averaging=proc.averaging,
                                  keep_spectrum=keep_spectrum, **kw)
@@ -291,16 +294,3 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
         base = np.real(d * np.exp(-1j * np.angle(rot)))
     ref = bud.train.unit(t - bud.ref_delay_s)
     return {"main": noise.gain_ohm * base * ref * gate}, noise, noise.load_ohm
-
-
-def if_half_width_hz(config, bud: Budget) -> float:
-    """Half-width of the heterodyne IF band-pass: the chirp's top frequency plus 25 %."""
-    return 1.25 * bud.train.f_stop_hz
-
-
-def _pn_correlate(v, train, t_lo, fs, load, proc):
-    """PN ranging: circular cross-correlation of the detected code with the reference code."""
-    from .common import pn_peak
-
-    ref = train.unit(t_lo)
-    return pn_peak(v, ref, fs, load, proc)
