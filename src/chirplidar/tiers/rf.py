@@ -4,7 +4,8 @@ chirp at Fs -> MZM field -> LO / transmit split -> (amplifier) -> channel delay 
 -> photodiodes with shot, thermal and amplifier noise -> (RF dechirp) -> FFT peak analysis.
 
 Optical fields are complex envelopes about the laser frequency in float64; the carrier is never
-sampled. Records have shape (batch, averages, N): no Python loop over samples or averages.
+sampled. The return is one point target, or the coherent sum of a footprint's echoes
+(tiers.echoes). Records have shape (batch, averages, N): no Python loop over samples or averages.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_
 from ..channel.effects import channel_returns, effect_rng
 from .common import (assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz,
                      pn_peak)
+from .echoes import Echoes
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
@@ -74,9 +76,58 @@ def _modulator_fields(train, bias_v: float, v_pi_v: float, n: int, fs_hz: float,
     return t, a_sig, a_lo, gate, products
 
 
+def _echo_envelope(train, bias_v: float, v_pi_v: float, t: np.ndarray, bud: Budget, fs_hz: float,
+                   upsample: int, offsets: np.ndarray, weights: np.ndarray, phases: np.ndarray):
+    """|A| and arg A of A(t) = sum_k sqrt(w_k) exp(j phi_k) a(t - tau - dtau_k), shape (batch, 1, N).
+
+    ``offsets``, ``weights`` (normalised) and ``phases`` have shape (batch, k); a is the MZM field
+    amplitude, evaluated exactly at each echo's delay (one waveform evaluation per echo, over (N,)
+    when every shot has the same offsets, else over (batch, N)). Real and imaginary parts are
+    accumulated separately in float64.
+    """
+    batch, k = offsets.shape
+    shared = bool(np.all(offsets == offsets[:1]))
+    delays = bud.delay_s + (offsets[:1] if shared else offsets)        # (1 or batch, k)
+    if bud.quantized:
+        # delay_method = 'resample' emulates the upxn grid: every echo lands on it too.
+        q = 1.0 / (fs_hz * upsample)
+        delays = np.round(delays / q) * q
+    coef = np.sqrt(weights)
+    c_re, c_im = coef * np.cos(phases), coef * np.sin(phases)          # (batch, k)
+    if shared:
+        # Echo fields (k, N), mixed per shot by a matrix product: one BLAS pass, no (batch, N)
+        # temporaries per echo.
+        a = np.empty((k, t.size))
+        for j in range(k):
+            a[j] = mzm_field(bias_v + train.voltage(t - delays[0, j]), v_pi_v)
+        re, im = c_re @ a, c_im @ a
+    else:
+        re = np.zeros((batch, t.size))
+        im = np.zeros((batch, t.size))
+        for j in range(k):
+            a = mzm_field(bias_v + train.voltage(t - delays[:, j, None]), v_pi_v)   # (batch, N)
+            re += c_re[:, j, None] * a
+            im += c_im[:, j, None] * a
+    arg = np.arctan2(im, re)
+    mag = re * re
+    mag += im * im
+    np.sqrt(mag, out=mag)        # |A| (values ~1: no need for hypot's overflow guard)
+    return mag[:, None, :], arg[:, None, :]
+
+
 def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
-                keep_spectrum: bool = False) -> dict:
-    """Simulate ``batch`` independent shots of one configuration. Returns arrays of shape (batch,)."""
+                keep_spectrum: bool = False, echoes: Echoes | None = None) -> dict:
+    """Simulate ``batch`` independent shots of one configuration. Returns arrays of shape (batch,).
+
+    ``echoes`` (optional, see :class:`~chirplidar.tiers.echoes.Echoes`): each shot's return is the
+    coherent sum of k delayed echoes of its footprint instead of one point target at
+    ``channel.distance_m``; arrays of shape (batch, k) or (k,). ``None`` is the point target, with
+    the same random draws and results as before echoes existed; echoes draw nothing themselves.
+    """
+    if echoes is not None and not isinstance(echoes, Echoes):
+        raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
+                         f"got {type(echoes).__name__}")
+    echo_arrays = None if echoes is None else echoes.for_batch(batch)
     bud = make_budget(config)
     sim, sysc, proc = config.simulation, config.system, config.processing
     fs, n, k_avg = sim.sample_rate_hz, config.n_samples, proc.averages
@@ -119,7 +170,15 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     if bud.ase_psd_w_per_hz > 0:
         sigma = np.sqrt(bud.ase_psd_w_per_hz * fs * bud.h / 2.0)
         ase = sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
-    sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi + dop_phase, ase)
+    if echo_arrays is None:
+        sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi + dop_phase, ase)
+    else:
+        # The echoes' sum is a complex, time-varying envelope: Field keeps a real amplitude and a
+        # phase, so it holds |A| and arg A. Laser phase noise: every echo takes the main delay's
+        # Wiener phase th_sig. Echoes dtau apart differ in phase noise by a variance of
+        # 2 pi linewidth |dtau| (2 pi x 100 kHz x 10 ns = 6e-3 rad^2): negligible.
+        mag, arg = _echo_envelope(train, bias, vpi, t, bud, fs, sim.upsample_factor, *echo_arrays)
+        sig = Field(np.sqrt(s_sig) * mag, arg + th_sig + psi + dop_phase, ase)
 
     load = None
     transfer = None
@@ -130,9 +189,9 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         b = config.balanced
         dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
         r1, r2 = resp["balanced_1"], resp["balanced_2"]
-        if ase is None and lw == 0:
-            # Without phase noise or ASE the currents are fixed mixes of three cached arrays,
-            # and a balanced pair's LO and signal power terms cancel in the coefficients.
+        if ase is None and lw == 0 and echo_arrays is None:
+            # Without phase noise, ASE or echoes the currents are fixed mixes of three cached
+            # arrays, and a balanced pair's LO and signal power terms cancel in the coefficients.
             cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, -psi - dop_phase) for k in (0, 1)]
             means = [float(np.mean(a)) for a in products]
             mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
@@ -287,6 +346,8 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
         base = np.abs(z)
     else:
         # Ideal coherent demodulation: the receiver knows the carrier phase (incl. phase noise).
+        # With footprint echoes there is no single carrier phase: it locks to the phase of the
+        # echoes' sum correlated with the main delay's envelope (rot below).
         d = z * np.exp(1j * (th_sig - th_lo + psi))
         a_ref = mzm_field(config.modulator.bias_v + bud.train.voltage(t - bud.delay_s),
                           config.modulator.v_pi_v)
