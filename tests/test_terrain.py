@@ -258,3 +258,60 @@ def test_synthetic_bad_arguments():
     with pytest.raises(ValueError, match="divide_height_m"):
         synthetic_ice_sheet(EXTENT, 100.0, np.random.default_rng(0), divide_height_m=-1.0,
                             margin_x_m=1e4)
+
+
+# ------------------------------------------------------------------ DEM no-data modes
+def _dem(path, z, nodata=-9999.0):
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    with rasterio.open(path, "w", driver="GTiff", height=z.shape[0], width=z.shape[1], count=1,
+                       dtype="float64", crs="EPSG:3413", nodata=nodata,
+                       transform=Affine(10.0, 0.0, 1000.0, 0.0, -10.0, 5000.0)) as dst:
+        dst.write(z, 1)
+
+
+def test_from_dem_nodata_modes(tmp_path):
+    z = np.arange(6 * 7, dtype=np.float64).reshape(6, 7)
+    z[2, 3] = -9999.0                      # the raster's nodata value
+    z[4, 5] = np.nan                       # NaN is no-data too
+    p = tmp_path / "dem.tif"
+    _dem(p, z)
+    with pytest.raises(ValueError, match=r"dem\.tif has 2 no-data pixels .* rows 2\.\.4, "
+                       r"columns 3\.\.5"):
+        Terrain.from_dem(p, nodata="error")
+    holes = Terrain.from_dem(p)            # default: holes, as before
+    assert holes.holes == 8                # two isolated pixels, 4 cells each
+    filled = Terrain.from_dem(p, nodata="fill")
+    assert filled.holes == 0 and filled.n_faces == 2 * 5 * 6
+    v = filled.mesh.vertices
+    node = v[(np.abs(v[:, 0] - 1035.0) < 1e-9) & (np.abs(v[:, 1] - 4975.0) < 1e-9)]
+    # the nearest valid pixels of (2, 3) are its four neighbours; EDT picks one of them
+    assert node[0, 2] in {z[1, 3], z[3, 3], z[2, 2], z[2, 4]}
+    with pytest.raises(ValueError, match="nodata must be one of"):
+        Terrain.from_dem(p, nodata="zero")
+    with pytest.raises(ValueError, match="band 2 does not exist"):
+        Terrain.from_dem(p, band=2)
+
+
+def test_heightfield_functions_match_terrain_builders():
+    from chirplidar.geometry.terrain import synthetic_ice_sheet_heightfield
+
+    x, y, z, codes = synthetic_ice_sheet_heightfield(EXTENT, 200.0, np.random.default_rng(2),
+                                                     **KW)
+    t = synthetic_ice_sheet(EXTENT, 200.0, np.random.default_rng(2), **KW)
+    np.testing.assert_array_equal(Terrain.from_heightfield(x, y, z, codes).mesh.vertices,
+                                  t.mesh.vertices)
+
+
+def test_synthetic_outcrop_band_places_rock():
+    # outcrops only in 0.2-0.3 L from the divide, tall enough to rise through the ice there
+    t = synthetic_ice_sheet(EXTENT, 50.0, np.random.default_rng(1), **KW, features=("outcrops",),
+                            outcrop_band=(0.2, 0.3), outcrop_height_m=(900.0, 1000.0),
+                            outcrop_radius_m=(300.0, 400.0))
+    c = t.mesh.triangles_center
+    rock = (t.face_materials == MATERIAL_CODES["rock"]) & (c[:, 0] < 0.9 * KW["margin_x_m"])
+    assert rock.any()
+    assert np.all(np.abs(c[rock, 0] - 0.25 * KW["margin_x_m"]) < 0.05 * KW["margin_x_m"] + 800)
+    with pytest.raises(ValueError, match="outcrop_band"):
+        synthetic_ice_sheet(EXTENT, 100.0, np.random.default_rng(0), **KW, outcrop_band=(0.5, 0.4))

@@ -121,8 +121,11 @@ class Terrain:
         if isinstance(loaded, trimesh.Scene):
             meshes = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
             if not meshes:
-                raise ValueError(f"terrain mesh file {path} holds a scene with no mesh geometry")
+                raise ValueError(f"terrain mesh file {path} has no faces (no mesh geometry)")
             loaded = loaded.to_mesh()
+        if isinstance(loaded, trimesh.PointCloud):   # vertices but no faces (e.g. PLY/OBJ)
+            raise ValueError(f"terrain mesh file {path} has no faces "  # noqa: TRY004
+                             f"(only {len(loaded.vertices)} vertices)")
         if not isinstance(loaded, trimesh.Trimesh):
             raise ValueError(  # noqa: TRY004 (project rule: ValueError)
                 f"terrain mesh file {path} holds no triangle mesh "
@@ -133,7 +136,8 @@ class Terrain:
             raise ValueError(f"terrain mesh file {path} has non-finite vertices")
         keep = loaded.nondegenerate_faces()
         if not np.any(keep):
-            raise ValueError(f"terrain mesh file {path} has only degenerate (zero-area) faces")
+            raise ValueError(f"terrain mesh file {path} has no faces of non-zero area "
+                             f"({len(loaded.faces)} degenerate faces only)")
         mesh = trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
                                faces=np.asarray(loaded.faces)[keep], process=False)
         mesh.remove_unreferenced_vertices()
@@ -214,12 +218,24 @@ class Terrain:
         return cls(mesh, face_codes.astype(np.int32), tuple(material_names), holes)
 
     @classmethod
-    def from_dem(cls, path, material: str = "snow", band: int = 1) -> Terrain:
+    def from_dem(cls, path, material: str = "snow", band: int = 1,
+                 nodata: str = "holes") -> Terrain:
         """Load a DEM raster (GeoTIFF, ...) with rasterio, honouring its nodata value.
 
         Node coordinates are the pixel centres in the raster's CRS (projected metres expected;
-        rotated/sheared transforms are refused). Requires the ``dem`` extra.
+        rotated/sheared transforms are refused); heights (m) are taken as they are stored.
+        ``nodata`` says what to do with no-data pixels (the raster's nodata value, NaN, inf):
+
+        * ``"holes"``: leave every cell touching one out (rays there miss; ``holes`` counts them);
+        * ``"fill"``: give each the height of the nearest valid pixel (Euclidean pixel distance,
+          ``scipy.ndimage.distance_transform_edt``); ``holes`` is then 0;
+        * ``"error"``: ValueError naming the file, the number of no-data pixels and their
+          bounding box (rows, columns and x/y in the raster's CRS).
+
+        Requires the ``dem`` extra.
         """
+        if nodata not in DEM_NODATA_MODES:
+            raise ValueError(f"nodata must be one of {DEM_NODATA_MODES}, got {nodata!r}")
         try:
             import rasterio
         except ImportError as exc:
@@ -231,8 +247,11 @@ class Terrain:
         code = material_code(material)
         try:
             with rasterio.open(path) as src:
-                z = src.read(band).astype(np.float64)
-                nodata = src.nodata
+                if not 1 <= int(band) <= src.count:
+                    raise ValueError(f"DEM {path} has {src.count} band(s); band {band} "
+                                     "does not exist")
+                z = src.read(int(band)).astype(np.float64)
+                nodata_value = src.nodata
                 tr = src.transform
                 if src.crs is not None and src.crs.is_geographic:
                     raise ValueError(f"DEM {path} is in geographic coordinates; "
@@ -243,18 +262,39 @@ class Terrain:
             raise ValueError(f"cannot read DEM file {path}: {exc}") from exc
         if tr.b != 0 or tr.d != 0:
             raise ValueError(f"DEM {path} has a rotated geotransform; not supported")
-        if nodata is not None:
-            z[z == nodata] = np.nan
+        if nodata_value is not None:
+            z[z == nodata_value] = np.nan
         z[~np.isfinite(z)] = np.nan
-        if np.isnan(z).all():
+        missing = np.isnan(z)
+        if missing.all():
             raise ValueError(f"DEM {path} is all no-data")
         ny, nx = z.shape
         x = tr.c + tr.a * (np.arange(nx) + 0.5)
         y = tr.f + tr.e * (np.arange(ny) + 0.5)
+        if missing.any():
+            if nodata == "error":
+                rows, cols = np.nonzero(missing)
+                r0, r1, c0, c1 = rows.min(), rows.max(), cols.min(), cols.max()
+                xs, ys = sorted((x[c0], x[c1])), sorted((y[r0], y[r1]))
+                raise ValueError(
+                    f"DEM {path} has {rows.size} no-data pixels (of {z.size}) in rows "
+                    f"{r0}..{r1}, columns {c0}..{c1} (pixel centres x {xs[0]:.3f}..{xs[1]:.3f} m, "
+                    f"y {ys[0]:.3f}..{ys[1]:.3f} m); choose nodata 'holes' (rays there miss) "
+                    "or 'fill' (nearest valid height)")
+            if nodata == "fill":
+                from scipy.ndimage import distance_transform_edt
+                # indices of the nearest valid (mask 0) pixel for every pixel
+                idx = distance_transform_edt(missing, return_distances=False,
+                                             return_indices=True)
+                z = z[tuple(idx)]
         try:
             return cls.from_heightfield(x, y, z, np.full(z.shape, code, dtype=np.int32))
         except ValueError as exc:
             raise ValueError(f"DEM {path}: {exc}") from exc
+
+
+#: What ``Terrain.from_dem`` does with no-data pixels.
+DEM_NODATA_MODES = ("holes", "fill", "error")
 
 
 # ---------------------------------------------------------------------- test surfaces
@@ -281,14 +321,33 @@ def _grid(extent_m, resolution_m):
     return np.linspace(x0, x1, max(nx, 2)), np.linspace(y0, y1, max(ny, 2))
 
 
-def flat_plane(height_m, extent_m, resolution_m, material: str = "snow") -> Terrain:
-    """Horizontal plane z = height_m over extent_m = (x0, x1, y0, y1), grid step resolution_m."""
+def flat_plane_heightfield(height_m, extent_m, resolution_m, material: str = "snow"):
+    """Heightfield ``(x_m, y_m, z_m, codes)`` of ``flat_plane`` (``Terrain.from_heightfield``)."""
     h = float(height_m)
     if not np.isfinite(h):
         raise ValueError(f"height_m must be finite, got {height_m!r}")
     x, y = _grid(extent_m, resolution_m)
     z = np.full((y.size, x.size), h)
-    return Terrain.from_heightfield(x, y, z, np.full(z.shape, material_code(material), np.int32))
+    return x, y, z, np.full(z.shape, material_code(material), np.int32)
+
+
+def flat_plane(height_m, extent_m, resolution_m, material: str = "snow") -> Terrain:
+    """Horizontal plane z = height_m over extent_m = (x0, x1, y0, y1), grid step resolution_m."""
+    return Terrain.from_heightfield(*flat_plane_heightfield(height_m, extent_m, resolution_m,
+                                                            material))
+
+
+def sloped_plane_heightfield(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
+                             material: str = "snow", origin_m=(0.0, 0.0)):
+    """Heightfield ``(x_m, y_m, z_m, codes)`` of ``sloped_plane``."""
+    s, az, h = float(slope_rad), float(azimuth_rad), float(height_m)
+    if not np.isfinite([s, az, h]).all() or not 0 <= s < np.pi / 2:
+        raise ValueError(f"slope_rad must lie in [0, pi/2) and azimuth_rad, height_m be finite; "
+                         f"got {slope_rad!r}, {azimuth_rad!r}, {height_m!r}")
+    x, y = _grid(extent_m, resolution_m)
+    xx, yy = np.meshgrid(x - origin_m[0], y - origin_m[1])
+    z = h + np.tan(s) * (xx * np.cos(az) + yy * np.sin(az))
+    return x, y, z, np.full(z.shape, material_code(material), np.int32)
 
 
 def sloped_plane(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
@@ -298,14 +357,8 @@ def sloped_plane(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
     azimuth_rad is measured from +x towards +y (mathematical convention, not a compass bearing):
     z = height_m + tan(slope_rad) * ((x - x0) cos(az) + (y - y0) sin(az)).
     """
-    s, az, h = float(slope_rad), float(azimuth_rad), float(height_m)
-    if not np.isfinite([s, az, h]).all() or not 0 <= s < np.pi / 2:
-        raise ValueError(f"slope_rad must lie in [0, pi/2) and azimuth_rad, height_m be finite; "
-                         f"got {slope_rad!r}, {azimuth_rad!r}, {height_m!r}")
-    x, y = _grid(extent_m, resolution_m)
-    xx, yy = np.meshgrid(x - origin_m[0], y - origin_m[1])
-    z = h + np.tan(s) * (xx * np.cos(az) + yy * np.sin(az))
-    return Terrain.from_heightfield(x, y, z, np.full(z.shape, material_code(material), np.int32))
+    return Terrain.from_heightfield(*sloped_plane_heightfield(
+        slope_rad, azimuth_rad, height_m, extent_m, resolution_m, material, origin_m))
 
 
 # ---------------------------------------------------------------------- synthetic ice sheet
@@ -346,7 +399,7 @@ def _smooth_noise(rng, shape, dx, corr_along_m, corr_across_m, azimuth_rad):
     return field_ / rms if rms > 0 else field_
 
 
-def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
+def synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng: np.random.Generator, *,
                         divide_height_m: float, margin_x_m: float, divide_x_m: float = 0.0,
                         features=SYNTHETIC_FEATURES,
                         ela_fraction: float = 0.6,
@@ -358,8 +411,12 @@ def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
                         pond_radius_m=(100.0, 400.0), pond_depth_m: float = 1.5,
                         pond_max_basin_m: float = 10.0,
                         n_outcrops: int = 4, outcrop_height_m=(20.0, 60.0),
-                        outcrop_radius_m=(60.0, 200.0)) -> Terrain:
-    """A simple, physically shaped ice-sheet margin for survey simulations.
+                        outcrop_radius_m=(60.0, 200.0), outcrop_band=(0.9, 1.0)):
+    """Heightfield ``(x_m, y_m, z_m, codes)`` of a simple, physically shaped ice-sheet margin.
+
+    :func:`synthetic_ice_sheet` turns it into a :class:`Terrain` (same arguments); the scene
+    loader caches the heightfield itself (the mesh is cheap to rebuild from it). ``z_m`` (ny, nx)
+    is relative to the ice-free ground (0 m); ``codes`` (ny, nx) are per-node material codes.
 
     Surface (x is the flow-line coordinate, the sheet is extruded along y):
 
@@ -385,8 +442,9 @@ def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
       slopes only the downhill part floods), filled flat up to the lowest surface point
       of the ring at 0.7-0.8 r: a flat ``open_water`` patch at the local minimum.
     * **Rock outcrops** (``"outcrops"``): ``n_outcrops`` Gaussian hills (seeded heights in
-      ``outcrop_height_m``, radii in ``outcrop_radius_m``) in the last 10 % of L before the
-      margin; where the hill rises above the ice surface the surface is ``rock``.
+      ``outcrop_height_m``, radii in ``outcrop_radius_m``) with centres in ``outcrop_band``
+      (fractions of L; default the last 10 % of L before the margin); where the hill rises above
+      the ice surface the surface is ``rock``.
 
     Every feature draws from its own child generator (``rng.spawn``), so disabling one does not
     change the random stream of the others; a disabled feature draws nothing.
@@ -403,6 +461,12 @@ def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
         raise ValueError(f"margin_x_m must differ from divide_x_m, got {margin_x_m!r}")
     if not 0 < ela_fraction < 1:
         raise ValueError(f"ela_fraction must lie in (0, 1), got {ela_fraction!r}")
+    for name, band in (("crevasse_band", crevasse_band), ("pond_band", pond_band),
+                       ("outcrop_band", outcrop_band)):
+        lo, hi = (float(v) for v in band)
+        if not (np.isfinite([lo, hi]).all() and 0.0 <= lo <= hi):
+            raise ValueError(f"{name} must be (lo, hi) fractions of L with 0 <= lo <= hi, "
+                             f"got {band!r}")
     x, y = _grid(extent_m, resolution_m)
     dx = float(x[1] - x[0])
     xx, yy = np.meshgrid(x, y)
@@ -463,7 +527,7 @@ def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
 
     if "outcrops" in feats and n_outcrops > 0:
         r = g["outcrops"]
-        oxi = r.uniform(0.9, 1.0, n_outcrops)
+        oxi = r.uniform(outcrop_band[0], outcrop_band[1], n_outcrops)
         ox = divide_x_m + sgn * oxi * L
         oy = r.uniform(y[0], y[-1], n_outcrops)
         oh = r.uniform(outcrop_height_m[0], outcrop_height_m[1], n_outcrops)
@@ -476,4 +540,14 @@ def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, *,
         z = np.where(above, rock, z)
         codes[above] = MATERIAL_CODES["rock"]
 
-    return Terrain.from_heightfield(x, y, z, codes)
+    return x, y, z, codes
+
+
+def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, **params) -> Terrain:
+    return Terrain.from_heightfield(
+        *synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng, **params))
+
+
+synthetic_ice_sheet.__doc__ = (
+    "A :class:`Terrain` from :func:`synthetic_ice_sheet_heightfield` (same arguments).\n\n"
+    + (synthetic_ice_sheet_heightfield.__doc__ or ""))
