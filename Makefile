@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test bench clean
+.PHONY: install demo thesis-demo test bench clean
 
 install: $(STAMP)
 
@@ -14,7 +14,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# The main job: a UAV survey over a generated Greenland outlet glacier, then its 3-D view.
 demo: install
+	$(BIN)/chirplidar run missions/greenland_uav.toml --out outputs/greenland_uav.nc --overwrite
+	$(BIN)/chirplidar view outputs/greenland_uav.nc --png outputs/greenland_uav.png
+
+# Thesis Fig. 5.7 (sensitivity of the three receivers) into outputs/fig5_7_sensitivity.{png,csv}.
+thesis-demo: install
 	$(BIN)/chirplidar demo --out outputs
 
 test: install
@@ -22,6 +28,7 @@ test: install
 
 bench: install
 	$(BIN)/chirplidar bench --what shot
+	$(BIN)/chirplidar bench --what raycast
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info

@@ -1,4 +1,4 @@
-"""Command line ``chirplidar``: ``shot``, ``sweep``, ``bench`` and ``demo``.
+"""Command line ``chirplidar``: ``shot``, ``sweep``, ``run``, ``view``, ``bench`` and ``demo``.
 
 Exit codes: 0 success, 1 a run finished but a requested product could not be made (e.g. no
 spectrum to plot), 2 bad input (configuration error, unknown name, bad option), 130 interrupted.
@@ -192,6 +192,36 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def cmd_run(args) -> int:
+    from .mission.runner import format_summary, run_mission
+
+    try:
+        result = run_mission(args.mission, overrides=args.set or [], tier=args.tier, out=args.out,
+                             seed=args.seed, overwrite=args.overwrite,
+                             progress=not args.no_progress)
+    except FileExistsError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(_dump_json({k: _json_number(v) for k, v in result.summary.items()}))
+    else:
+        print(format_summary(result.summary))
+    return 0
+
+
+def cmd_view(args) -> int:
+    from .mission.view import view_result
+
+    try:
+        path = view_result(args.result, var=args.var, png=args.png)
+    except FileNotFoundError as exc:
+        raise UsageError(str(exc)) from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if path is not None:
+        print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench import bench_effects, bench_shot
 
@@ -294,6 +324,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="plot y: an output name, outputs.CNR = SNR (default SNR)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_sweep, subparser=p)
+
+    p = sub.add_parser("run", help="fly a survey mission over its scene and write a CF NetCDF "
+                       "trajectory file")
+    p.add_argument("mission", metavar="MISSION", help="survey mission, e.g. "
+                   "missions/greenland_uav.toml")
+    p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
+                   help="override a mission key (e.g. platform.uav.altitude_m=200, "
+                        "survey.stop_s=60, chrp.F2=300e6); repeatable")
+    p.add_argument("--tier", choices=("link", "baseband", "rf"), default=None,
+                   help="override survey.tier: link = closed-form budget (campaigns), rf = full "
+                        "time-domain chain (short stretches)")
+    p.add_argument("--out", metavar="PATH.nc", default=None,
+                   help="results file (default outputs/<mission name>.nc)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: the mission's)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing results file")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("view", help="3-D view of a run: terrain, track and footprints")
+    p.add_argument("result", metavar="RESULT.nc", help="a file written by chirplidar run")
+    p.add_argument("--var", default="range_error",
+                   help="variable that colours the footprints (default range_error)")
+    p.add_argument("--png", metavar="OUT.png", default=None,
+                   help="write a PNG off-screen instead of opening a window")
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
     p.add_argument("--what", choices=("shot", "effects", "raycast"), default="shot",

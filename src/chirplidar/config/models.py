@@ -379,6 +379,192 @@ class Sweep(_Model):
         return _translate(v, "on_off")
 
 
+# ------------------------------------------------------------------------------------------
+# Survey sections: where the instrument flies (scene, platform, beams, run). Optional in a
+# transceiver-only mission file; ``chirplidar run`` needs them all (mission.survey checks).
+
+XY = tuple[float, float]
+
+
+class SceneRef(_Model):
+    """The scene the mission flies over."""
+
+    file: str = Field(description="scene TOML file, relative to the mission file (scenes/*.toml)")
+
+
+def _check_polygon(points, key: str):
+    from shapely import is_valid_reason
+    from shapely.geometry import Polygon
+
+    if len(points) < 3:
+        raise ValueError(f"{key} needs at least 3 vertices, got {len(points)}")
+    poly = Polygon(points)
+    if not poly.is_valid:
+        raise ValueError(f"{key} is not a simple polygon ({is_valid_reason(poly)}); "
+                         "self-intersecting survey outlines are refused")
+    if poly.area <= 0:
+        raise ValueError(f"{key} has zero area")
+
+
+class _Survey2D(_Model):
+    """A path as waypoints, or a lawnmower pattern over a polygon (x, y in ``coordinates``)."""
+
+    coordinates: Literal["scene_centre", "projected"] = Field(
+        description="'scene_centre': x, y in metres east/north (grid) of the scene centre; "
+        "'projected': absolute x, y of the scene's EPSG frame")
+    waypoints_m: tuple[XY, ...] | None = Field(None, description="path vertices (x, y) [m]")
+    survey_polygon_m: tuple[XY, ...] | None = Field(
+        None, description="area to cover with a lawnmower pattern (x, y) [m]")
+    line_spacing_m: float | None = Field(None, gt=0, description="lawnmower line spacing")
+    heading_deg: float | None = Field(None, description="lawnmower line direction, clockwise "
+                                      "from grid north")
+
+    @model_validator(mode="after")
+    def _one_path(self):
+        kind = type(self).__name__.lower().replace("platform", "")
+        if (self.waypoints_m is None) == (self.survey_polygon_m is None):
+            raise ValueError(f"platform.{kind}: give exactly one of waypoints_m and "
+                             "survey_polygon_m")
+        if self.waypoints_m is not None and len(self.waypoints_m) < 2:
+            raise ValueError(f"platform.{kind}.waypoints_m needs at least 2 points")
+        if self.survey_polygon_m is not None:
+            _check_polygon(self.survey_polygon_m, f"platform.{kind}.survey_polygon_m")
+            if self.line_spacing_m is None or self.heading_deg is None:
+                raise ValueError(f"platform.{kind}.survey_polygon_m needs line_spacing_m and "
+                                 "heading_deg")
+        return self
+
+
+class UavPlatform(_Survey2D):
+    speed_mps: float = Field(gt=0, description="ground speed along the path")
+    altitude_m: float = Field(description="flight height: above the terrain or above the WGS-84 "
+                              "ellipsoid, per altitude_mode")
+    altitude_mode: Literal["above_ground", "absolute"]
+
+
+class AircraftPlatform(_Survey2D):
+    speed_mps: float = Field(gt=0, description="ground speed")
+    altitude_m: float = Field(description="flight height above the WGS-84 ellipsoid")
+    turn_radius_m: float = Field(gt=0, description="radius of the turns joining the lines")
+
+
+class OrbitPlatform(_Model):
+    """Keplerian elements with J2 drift; the orbit is placed so its nadir point passes the scene
+    centre at t = 0 (the RAAN and the anomaly are solved for, on the chosen pass)."""
+
+    altitude_m: float = Field(gt=100e3, description="altitude of the circular orbit above the "
+                              "equatorial radius (a = R_E + altitude)")
+    eccentricity: float = Field(ge=0, lt=0.1)
+    inclination_deg: float = Field(gt=0, lt=180)
+    pass_direction: Literal["ascending", "descending"]
+    j2: bool = Field(True, description="secular J2 drift of the node and perigee")
+
+
+class TlePlatform(_Model):
+    line1: str
+    line2: str
+    time_offset_s: float = Field(description="TLE-epoch time of the run's t = 0")
+
+
+class Platform(_Model):
+    kind: Literal["uav", "aircraft", "satellite"]
+    uav: UavPlatform | None = None
+    aircraft: AircraftPlatform | None = None
+    orbit: OrbitPlatform | None = None
+    tle: TlePlatform | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        given = [k for k in ("uav", "aircraft", "orbit", "tle") if getattr(self, k) is not None]
+        wanted = {"uav": ["uav"], "aircraft": ["aircraft"],
+                  "satellite": [["orbit"], ["tle"]]}[self.kind]
+        ok = given in wanted if self.kind == "satellite" else given == wanted
+        if not ok:
+            need = "[platform.orbit] or [platform.tle]" if self.kind == "satellite" \
+                else f"[platform.{self.kind}]"
+            raise ValueError(f"platform.kind = '{self.kind}' needs exactly {need}; "
+                             f"found {['platform.' + g for g in given] or 'none'}")
+        return self
+
+
+class AttitudeConfig(_Model):
+    """Platform attitude (intrinsic Z-Y-X: yaw, pitch, roll) and pointing jitter."""
+
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+    jitter_rad_rms: float = Field(ge=0, description="pointing jitter per axis (rms)")
+
+
+class Beams(_Model):
+    """Beam pattern: nadir, three ICESat-2-like pairs, a conical scan, or a custom list."""
+
+    pattern: Literal["nadir", "paired", "conical", "custom"]
+    pair_spacing_deg: float | None = Field(None, gt=0, description="paired: across-track angle "
+                                           "between pair centres")
+    within_pair_deg: float | None = Field(None, gt=0, description="paired: angle between the "
+                                          "two beams of a pair")
+    cone_half_angle_deg: float | None = Field(None, gt=0, lt=60, description="conical: "
+                                              "off-nadir angle")
+    scan_rate_deg_s: float | None = Field(None, description="conical: azimuth rate")
+    off_nadir_deg: tuple[float, ...] | None = Field(None, description="custom: per beam")
+    azimuth_deg: tuple[float, ...] | None = Field(None, description="custom: per beam, from "
+                                                  "the flight direction towards the right")
+
+    @model_validator(mode="after")
+    def _needs(self):
+        need = {"nadir": (), "paired": ("pair_spacing_deg", "within_pair_deg"),
+                "conical": ("cone_half_angle_deg", "scan_rate_deg_s"),
+                "custom": ("off_nadir_deg", "azimuth_deg")}[self.pattern]
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"beams.pattern = '{self.pattern}' needs "
+                             f"{', '.join('beams.' + k for k in missing)}")
+        if self.pattern == "custom":
+            if len(self.off_nadir_deg) != len(self.azimuth_deg) or not self.off_nadir_deg:
+                raise ValueError("beams.off_nadir_deg and beams.azimuth_deg must be non-empty "
+                                 "lists of equal length")
+            if any(not 0 <= a < 60 for a in self.off_nadir_deg):
+                raise ValueError("beams.off_nadir_deg must lie in [0, 60) degrees")
+        return self
+
+
+class SurveyRun(_Model):
+    """What to run: shot clock, time span, tier, detection, footprint sampling, chunking."""
+
+    tier: Literal["link", "baseband", "rf"]
+    prf_hz: float = Field(gt=0, description="record (shot) rate; each record averages "
+                          "processing.averages chirps (sys.avg)")
+    start_s: float = Field(description="first shot time, s after the path start (UAV, aircraft) "
+                           "or after the scene-centre crossing (satellite)")
+    stop_s: float | None = Field(None, description="end of the span; omitted = the end of the "
+                                 "path (UAV, aircraft only)")
+    epoch_utc: str = Field(description="ISO 8601 UTC date-time of t = 0 (the results' time origin)")
+    detection_threshold_db: float = Field(description="SNR in the RBW a return needs to count "
+                                          "as detected (the thesis quotes sensitivity at 10 dB)")
+    subrays_per_beam: int = Field(ge=1, le=512, description="footprint samples per beam")
+    chunk_shots: int = Field(20000, ge=1, description="shots per chunk (memory bound and "
+                             "resume granularity)")
+
+    @field_validator("epoch_utc")
+    @classmethod
+    def _epoch(cls, v):
+        import datetime as _dt
+
+        try:
+            _dt.datetime.fromisoformat(v.replace("Z", "+00:00"))
+        except ValueError:
+            raise ValueError(f"not an ISO 8601 date-time: {v!r}") from None
+        return v
+
+    @model_validator(mode="after")
+    def _span(self):
+        if self.stop_s is not None and self.stop_s < self.start_s:
+            raise ValueError(f"survey.stop_s ({self.stop_s}) is before survey.start_s "
+                             f"({self.start_s})")
+        return self
+
+
 class MissionConfig(_Model):
     """A whole transceiver configuration (the ``instrument`` of a mission)."""
 
@@ -397,6 +583,12 @@ class MissionConfig(_Model):
     effects: Effects = Effects()
     sweep: Sweep = Sweep()
     seed: int = Field(ge=0, description="seed of the run's numpy Generator")
+    # Survey (chirplidar run): optional for transceiver-only files.
+    scene: SceneRef | None = None
+    platform: Platform | None = None
+    attitude: AttitudeConfig | None = None
+    beams: Beams | None = None
+    survey: SurveyRun | None = None
 
     @model_validator(mode="after")
     def _sampling(self):
@@ -442,6 +634,13 @@ class MissionConfig(_Model):
                 "laser.linewidth_hz (lsr.Lw) > 0 needs 'phase_noise' in effects.enabled, and "
                 "'phase_noise' needs a linewidth > 0: the list is the one switch for each effect "
                 f"(linewidth {self.laser.linewidth_hz:g} Hz, enabled {list(self.effects.enabled)})")
+        if self.survey is not None:
+            record_rate = 1.0 / (self.processing.averages * self.waveform.chirp_period_s)
+            if self.survey.prf_hz > record_rate * (1 + 1e-9):
+                raise ValueError(
+                    f"survey.prf_hz = {self.survey.prf_hz:g} Hz is faster than the record rate "
+                    f"1 / (processing.averages x chrp.Tchp) = {record_rate:g} Hz: a record of "
+                    f"{self.processing.averages} chirps takes longer than the shot interval")
         if self.processing.averages > 1 and self.waveform.chirp_period_s <= self.simulation.duration_s / 2:
             raise ValueError("processing.averages > 1 (sys.avg) needs one chirp per record: set "
                              "waveform.chirp_period_s (chrp.Tchp) > simulation.duration_s/2 "

@@ -1,4 +1,6 @@
-"""Mission-level outputs: per-shot results as CF-1.8 trajectory NetCDF (see ``results``)."""
+"""Survey missions: scenes (``scene``), planning and geometry (``survey``), per-shot returns
+through the tiers (``measure``), the runner (``runner``) and CF-1.8 trajectory NetCDF results
+(``results``). The runner and scene loader are imported on first use (they pull in trimesh)."""
 
 from .results import (
     CONVENTIONS,
@@ -17,6 +19,20 @@ from .results import (
     write_netcdf,
 )
 
+
+
+def __getattr__(name):  # lazy: `import chirplidar.mission` stays light
+    if name in ("load_scene", "Scene"):
+        from . import scene
+
+        return getattr(scene, name)
+    if name in ("run_mission", "RunResult"):
+        from . import runner
+
+        return getattr(runner, name)
+    raise AttributeError(name)
+
+
 __all__ = [
     "CONVENTIONS",
     "DETECTED_FLAG_MEANINGS",
@@ -32,4 +48,8 @@ __all__ = [
     "check_dataset",
     "read_netcdf",
     "write_netcdf",
+    "load_scene",
+    "Scene",
+    "run_mission",
+    "RunResult",
 ]

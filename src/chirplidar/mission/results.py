@@ -136,6 +136,8 @@ SCHEMA: tuple[VarSpec, ...] = (
             thesis_name="Psig (dBm)"),
     VarSpec("beat_frequency", "float64", "Hz", "detected beat frequency",
             thesis_name="f_beat_hz"),
+    VarSpec("beat_width", "float64", "Hz", "3 dB width of the detected beat peak",
+            thesis_name="d_3dB (in Hz)"),
     VarSpec("footprint_diameter", "float64", "m", "laser footprint diameter on the surface"),
     VarSpec("detected", "int8", "1", "surface return detection flag", "status_flag"),
     VarSpec("surface_type", "int16", "1", "surface material at the footprint"),

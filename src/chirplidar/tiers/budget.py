@@ -43,15 +43,16 @@ class Budget:
         return SPEED_OF_LIGHT_M_S * (np.asarray(lag_s) + self.ref_delay_s) / (2.0 * self.group_index)
 
 
-def reference_delay_s(config, delay_s: float, rate_hz_per_s: float) -> float:
+def reference_delay_s(config, delay_s, rate_hz_per_s: float):
     """Reference delay: explicit, or the ``sys.fmaxopt`` rule (delay the reference until the beat
-    falls to ``max_beat_frequency_hz``; zero when it already does)."""
+    falls to ``max_beat_frequency_hz``; zero when it already does). ``delay_s`` may be an array
+    (one per shot: the rule then tracks each shot's range, as a range-gate tracker would)."""
     if config.system.reference_delay_s is not None:
-        return config.system.reference_delay_s
+        return np.full(np.shape(delay_s), config.system.reference_delay_s)[()]
     if config.system.modulation == "pn_code":
-        return 0.0
+        return np.zeros(np.shape(delay_s))[()]
     f_max = config.system.max_beat_frequency_hz
-    return max(0.0, delay_s - f_max / rate_hz_per_s)
+    return np.maximum(0.0, np.asarray(delay_s, float) - f_max / rate_hz_per_s)[()]
 
 
 def make_budget(config) -> Budget:
@@ -73,7 +74,7 @@ def make_budget(config) -> Budget:
     h = power_transmission(config)
     delay = round_trip_delay_s(config)
     rate = train.rate_hz_per_s if hasattr(train, "rate_hz_per_s") else 0.0
-    ref = reference_delay_s(config, delay, rate) if rate else reference_delay_s(config, delay, 1.0)
+    ref = float(reference_delay_s(config, delay, rate if rate else 1.0))
     quantized = config.simulation.delay_method == "resample"
     if quantized:
         q = 1.0 / (config.simulation.sample_rate_hz * config.simulation.upsample_factor)

@@ -67,12 +67,23 @@ def detection_flags(config, bud, returns=None) -> list[str]:
         # Appendix D: the line at f_R - f_d folds through zero; its sign is lost.
         flags.append("doppler_ambiguous")
     if config.system.modulation == "fm_chirp":
-        rise, period = bud.train.rise_s, bud.train.period_s
-        if bud.lag_s >= rise and period - bud.lag_s >= rise:
+        no_overlap, out_of_band = beat_flags(config, bud, bud.lag_s, bud.f_beat_hz)
+        if no_overlap:
             flags.append("no_overlap")
-        if not (config.processing.highpass_hz <= bud.f_beat_hz <= peak_search_max_hz(config, bud)):
+        if out_of_band:
             flags.append("beat_out_of_band")
     return flags
+
+
+def beat_flags(config, bud, lag_s, f_beat_hz):
+    """(no_overlap, beat_out_of_band) for FM chirps, elementwise over ``lag_s`` and ``f_beat_hz``:
+    the signal and reference ramps do not overlap, or the beat lies outside the processed band."""
+    rise, period = bud.train.rise_s, bud.train.period_s
+    lag, f_b = np.asarray(lag_s, float), np.asarray(f_beat_hz, float)
+    no_overlap = (lag >= rise) & (period - lag >= rise)
+    out_of_band = ~((config.processing.highpass_hz <= f_b)
+                    & (f_b <= peak_search_max_hz(config, bud)))
+    return no_overlap[()], out_of_band[()]
 
 
 def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=None, tier: str,

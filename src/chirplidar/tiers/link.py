@@ -43,6 +43,13 @@ def _coherence(a: np.ndarray, dt: float, linewidth_hz: float, lag_s: float) -> f
     return float(total / a.sum() ** 2)
 
 
+def crb_sigma_f_hz(snr, rbw_hz: float, duration_s):
+    """Cramer-Rao bound (Rife & Boorstyn 1974) on the frequency of a tone of ``duration_s`` whose
+    SNR in ``rbw_hz`` is ``snr`` (linear): sqrt(6 / (E/N0)) / (2 pi T), E/N0 = snr rbw T."""
+    e_over_n0 = np.asarray(snr, float) * rbw_hz * duration_s
+    return np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * np.asarray(duration_s, float))
+
+
 def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                   keep_spectrum: bool = False) -> dict:
     bud = make_budget(config)
@@ -153,8 +160,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     snr = snr * returns.power_factor
     out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
     # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
-    e_over_n0 = snr * proc.rbw_hz * t_ov
-    sigma_f = np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * t_ov)
+    sigma_f = crb_sigma_f_hz(snr, proc.rbw_hz, t_ov)
+    extra = {**extra, "t_overlap_s": np.full(batch, t_ov)}
     f_meas = f_b + np.where(split, f_d, 0.0) + sigma_f * rng.standard_normal(batch)
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
     result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.broadcast_to(tone * out_scale, (batch,)),

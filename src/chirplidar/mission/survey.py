@@ -1,0 +1,331 @@
+"""From a mission's survey sections to per-shot geometry: the platform path, beams, shot clock,
+chunks, and the rays cast on the scene's terrain.
+
+Conventions
+-----------
+* Time: ``t_s = 0`` is the start of the path (UAV, aircraft) or the moment the satellite's nadir
+  point crosses the scene centre; ``survey.start_s`` / ``stop_s`` select the span.
+* Beams: body frame x forward, y right, z down (see :mod:`chirplidar.geometry.platform`).
+* Every shot-beam pair is one ray in the scene frame (:class:`frames.ProjectedRays`, true ranges
+  through ``range_offset_m`` and ``metres_per_unit``). Its footprint is sampled by
+  ``survey.subrays_per_beam`` sub-rays over the beam's 1/e^2 cone at the shot's range
+  (:func:`raycast.footprint_subrays`, Gaussian weights).
+* Seeds: chunk ``i`` draws from child ``i`` of ``SeedSequence(seed)``; inside a chunk the pointing
+  jitter, the channel effects and the measurement noise each have their own named stream, so a
+  chunk's result does not depend on which chunks ran before it, or where.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config.loader import ConfigError
+from ..geometry import frames
+from ..geometry.platform import (AircraftLines, Attitude, BeamPattern, KeplerOrbit, TleOrbit,
+                                 UavPath, conical_scan, lawnmower, lawnmower_lines, nadir_beam,
+                                 paired_beams_across_track, shot_geometry, shot_times)
+from ..geometry.raycast import cast_rays, footprint_subrays
+from ..optics import beam_radius_m
+
+#: Named random streams of a chunk (spawn-key suffixes).
+STREAM_JITTER = 1
+STREAM_FOOTPRINT = 2
+
+
+def stream(seq: np.random.SeedSequence, key: int) -> np.random.Generator:
+    """A named child stream of ``seq`` (independent of how many others exist)."""
+    child = np.random.SeedSequence(entropy=seq.entropy, spawn_key=tuple(seq.spawn_key) + (key,))
+    return np.random.default_rng(child)
+
+
+def chunk_seeds(seed: int, n_chunks: int) -> list[np.random.SeedSequence]:
+    return np.random.SeedSequence(seed).spawn(n_chunks)
+
+
+# ------------------------------------------------------------------------------------ planning
+def _xy(points, coordinates: str, scene) -> np.ndarray:
+    p = np.asarray(points, dtype=float)
+    if coordinates == "scene_centre":
+        p = p + np.asarray(scene.center_xy_m)
+    return p
+
+
+def _orbit_over(scene, orb, source: str) -> KeplerOrbit:
+    """Circular-ish Kepler orbit whose geodetic nadir passes the scene centre at t = 0.
+
+    Start from the spherical solution (argument of latitude u with sin(lat) = sin(i) sin(u);
+    RAAN from the longitude) and refine RAAN and the mean anomaly by Newton steps on the
+    satellite's geodetic latitude and longitude (pyproj), to far below a metre.
+    """
+    from ..units import WGS84_A_M
+
+    cx, cy = scene.center_xy_m
+    lat_c, lon_c, _ = frames.projected_to_geodetic(np.array(cx), np.array(cy), np.array(0.0),
+                                                   scene.epsg)
+    lat_c, lon_c = float(lat_c), float(lon_c)
+    inc = np.radians(orb.inclination_deg)
+    s = np.sin(np.radians(lat_c)) / np.sin(inc)
+    if abs(s) > 1.0:
+        raise ConfigError(f"{source}: platform.orbit.inclination_deg = {orb.inclination_deg:g} "
+                          f"never reaches the scene's latitude {lat_c:.3f} deg: the ground track "
+                          "never crosses the scene")
+    u = np.arcsin(s)
+    if orb.pass_direction == "descending":
+        u = np.pi - u
+    raan = np.radians(lon_c) - np.arctan2(np.cos(inc) * np.sin(u), np.cos(u))
+
+    def make(raan_rad, m_rad):
+        return KeplerOrbit(WGS84_A_M + orb.altitude_m, orb.eccentricity, inc, raan_rad, 0.0,
+                           m_rad, 0.0, j2=orb.j2)
+
+    def nadir(raan_rad, m_rad):
+        p = make(raan_rad, m_rad).positions(np.zeros(1))[0]
+        lat, lon, _ = frames.ecef_to_geodetic(p[0], p[1], p[2])
+        return np.array([float(lat) - lat_c, (float(lon) - lon_c + 180.0) % 360.0 - 180.0])
+
+    x = np.array([raan, u])  # argument of perigee 0: mean anomaly ~ u for small e
+    for _ in range(8):
+        f = nadir(*x)
+        if np.max(np.abs(f)) < 1e-9:  # degrees: 0.1 mm
+            break
+        jac = np.empty((2, 2))
+        for k in range(2):
+            dx = np.zeros(2)
+            dx[k] = 1e-7
+            jac[:, k] = (nadir(*(x + dx)) - f) / 1e-7
+        x = x - np.linalg.solve(jac, f)
+    return make(*x)
+
+
+@dataclass(frozen=True)
+class SurveyPlan:
+    """Everything fixed for a whole run: path, beams, attitude and the shot clock."""
+
+    path: object
+    beams: BeamPattern
+    attitude: Attitude
+    jitter_rad_rms: float
+    t_s: np.ndarray            # (n_shots,) shot times [s]
+    chunk_shots: int
+    epsg: int
+    target_height_m: float     # chord ends of the scene-frame rays (below / above the terrain)
+    entry_height_m: float
+
+    @property
+    def n_shots(self) -> int:
+        return int(self.t_s.size)
+
+    @property
+    def n_chunks(self) -> int:
+        return max(1, -(-self.n_shots // self.chunk_shots))
+
+    def chunk_times(self, index: int) -> np.ndarray:
+        return self.t_s[index * self.chunk_shots:(index + 1) * self.chunk_shots]
+
+
+def _beams(b) -> BeamPattern:
+    if b.pattern == "nadir":
+        return nadir_beam()
+    if b.pattern == "paired":
+        return paired_beams_across_track(np.radians(b.pair_spacing_deg),
+                                         np.radians(b.within_pair_deg))
+    if b.pattern == "conical":
+        return conical_scan(np.radians(b.cone_half_angle_deg), np.radians(b.scan_rate_deg_s))
+    return BeamPattern(np.radians(b.off_nadir_deg), np.radians(b.azimuth_deg))
+
+
+def _path(config, scene, source: str):
+    pf = config.platform
+    if pf.kind == "satellite":
+        if pf.orbit is not None:
+            return _orbit_over(scene, pf.orbit, source)
+        return _TleShifted(TleOrbit(pf.tle.line1, pf.tle.line2), pf.tle.time_offset_s)
+    sec = pf.uav if pf.kind == "uav" else pf.aircraft
+    key = f"platform.{pf.kind}"
+    hdg = np.radians(sec.heading_deg) if sec.heading_deg is not None else None
+    try:
+        if pf.kind == "uav":
+            if sec.survey_polygon_m is not None:
+                xy = lawnmower(_xy(sec.survey_polygon_m, sec.coordinates, scene),
+                               sec.line_spacing_m, hdg)
+            else:
+                xy = _xy(sec.waypoints_m, sec.coordinates, scene)
+            w = np.column_stack([xy, np.full(len(xy), sec.altitude_m)])
+            ground = scene.ground_height_m if sec.altitude_mode == "above_ground" else None
+            return UavPath(w, sec.speed_mps, sec.altitude_mode, ground)
+        if sec.survey_polygon_m is not None:
+            lines = lawnmower_lines(_xy(sec.survey_polygon_m, sec.coordinates, scene),
+                                    sec.line_spacing_m, hdg)
+        else:
+            pts = _xy(sec.waypoints_m, sec.coordinates, scene)
+            if len(pts) % 2:
+                raise ValueError("waypoints_m of an aircraft are (start, end) pairs of straight "
+                                 f"lines: an even number is needed, got {len(pts)}")
+            lines = [(pts[i], pts[i + 1]) for i in range(0, len(pts), 2)]
+        return AircraftLines(lines, sec.altitude_m, sec.speed_mps, sec.turn_radius_m)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {key}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class _TleShifted:
+    """A TLE orbit whose run time 0 is ``offset_s`` after the TLE epoch."""
+
+    orbit: TleOrbit
+    offset_s: float
+    frame: str = "ecef"
+
+    def positions(self, t_s):
+        return self.orbit.positions(np.asarray(t_s, float) + self.offset_s)
+
+    def velocities(self, t_s):
+        return self.orbit.velocities(np.asarray(t_s, float) + self.offset_s)
+
+
+def plan_survey(config, scene, source: str) -> SurveyPlan:
+    """The run's path, beams and shot clock; ConfigError (naming ``source`` and the key) on
+    sections that are missing or a span the path cannot fly."""
+    missing = [k for k in ("scene", "platform", "attitude", "beams", "survey")
+               if getattr(config, k) is None]
+    if missing:
+        raise ConfigError(f"{source}: a survey run needs the sections "
+                          f"{', '.join('[' + m + ']' for m in missing)}")
+    sv = config.survey
+    path = _path(config, scene, source)
+    stop = sv.stop_s
+    if stop is None:
+        if not hasattr(path, "duration_s"):
+            raise ConfigError(f"{source}: survey.stop_s is required for a satellite")
+        stop = path.duration_s
+    if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
+        raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the path "
+                          f"({path.duration_s:.1f} s)")
+    t = shot_times(sv.start_s, stop, sv.prf_hz)
+    att = config.attitude
+    z0, z1 = scene.height_range_m
+    margin = 1.0 + 1e-3 * (z1 - z0)
+    return SurveyPlan(path=path, beams=_beams(config.beams),
+                      attitude=Attitude(np.radians(att.roll_deg), np.radians(att.pitch_deg),
+                                        np.radians(att.yaw_deg)),
+                      jitter_rad_rms=att.jitter_rad_rms, t_s=t, chunk_shots=sv.chunk_shots,
+                      epsg=scene.epsg, target_height_m=z0 - margin, entry_height_m=z1 + margin)
+
+
+# ------------------------------------------------------------------------------------ geometry
+@dataclass(frozen=True)
+class ChunkGeometry:
+    """Per shot (n) and beam (b) and, for footprints, sub-ray (k). Misses: inf ranges, code -1."""
+
+    t_s: np.ndarray              # (n,)
+    platform_xyh: np.ndarray     # (n, 3) scene x, y [m] and ellipsoidal height [m]
+    off_nadir_rad: np.ndarray    # (n, b)
+    azimuth_rad: np.ndarray      # (n, b) clockwise from true north
+    closing_speed_mps: np.ndarray  # (n, b) platform velocity along the beam (approaching > 0)
+    rays: frames.ProjectedRays   # (n, b)
+    range_true_m: np.ndarray     # (n, b) centre ray
+    hit_xyz_m: np.ndarray        # (n, b, 3) centre ray hit in the scene frame
+    incidence_rad: np.ndarray    # (n, b)
+    material: np.ndarray         # (n, b) int codes, -1 on a miss
+    beam_radius_m: np.ndarray    # (n, b) 1/e^2 radius at the centre range (nan on a miss)
+    sub_range_m: np.ndarray      # (n, b, k)
+    sub_weight: np.ndarray       # (n, b, k) Gaussian beam weights, sum 1 per shot-beam
+    sub_incidence_rad: np.ndarray  # (n, b, k)
+    sub_material: np.ndarray     # (n, b, k)
+
+    def point_at_range(self, range_m) -> np.ndarray:
+        """Scene-frame point (n, b, 3) at true ``range_m`` (n, b) along each centre ray."""
+        r = self.rays
+        t = (np.asarray(range_m, float) - r.range_offset_m) / r.metres_per_unit
+        return r.origin_m + t[..., None] * r.direction
+
+
+def _angles(path_frame: str, pos, d, epsg):
+    """Off-nadir angle, azimuth from true north and ECEF beam directions for (n, b) beams."""
+    if path_frame == "ecef":
+        lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
+        d_ecef = d
+    else:
+        _, ex, ey, up = frames.grid_axes_ecef(pos, epsg)
+        d_ecef = d[..., :1] * ex[:, None] + d[..., 1:2] * ey[:, None] + d[..., 2:] * up[:, None]
+        o_ecef = frames.projected_to_ecef(pos, epsg)
+        lat, lon, _ = frames.ecef_to_geodetic(o_ecef[:, 0], o_ecef[:, 1], o_ecef[:, 2])
+    enu = frames.enu_basis(lat, lon)  # (n, 3, 3) rows east, north, up
+    e, nth, u = (np.einsum("nbj,nj->nb", d_ecef, enu[:, i]) for i in range(3))
+    return np.arccos(np.clip(-u, -1.0, 1.0)), np.mod(np.arctan2(e, nth), 2 * np.pi)
+
+
+def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequence,
+                   n_sub: int) -> ChunkGeometry:
+    """Cast every shot's beams and footprint sub-rays on the scene terrain."""
+    n, b = t_s.size, plan.beams.n_beams
+    jit = stream(seq, STREAM_JITTER) if plan.jitter_rad_rms > 0 else None
+    sg = shot_geometry(plan.path, t_s, plan.beams, plan.attitude, epsg=plan.epsg,
+                       jitter_rad_rms=plan.jitter_rad_rms, rng=jit,
+                       target_height_m=plan.target_height_m, entry_height_m=plan.entry_height_m)
+    rays = sg.rays
+    if sg.frame == "ecef":
+        platform = frames.ecef_to_projected(sg.position_m, plan.epsg) if n else np.zeros((0, 3))
+    else:
+        platform = sg.position_m
+    if n:
+        off, az = _angles(sg.frame, sg.position_m, sg.direction, plan.epsg)
+    else:
+        off = az = np.zeros((0, b))
+    closing = np.einsum("nj,nbj->nb", sg.velocity_mps, sg.direction)
+    o = rays.origin_m.reshape(-1, 3)
+    d = rays.direction.reshape(-1, 3)
+    centre = cast_rays(scene.terrain, o, d)
+    valid = rays.valid.reshape(-1)
+    t_hit = np.where(valid & centre.hit, centre.ranges_m, np.inf)
+    rng_true = rays.range_m(t_hit.reshape(n, b))
+    hit = np.isfinite(rng_true)
+    mat = np.where(hit, centre.material_codes.reshape(n, b), -1)
+    inc = np.where(hit, centre.incidence_rad.reshape(n, b), np.inf)
+    ch = config.channel
+    w = np.where(hit, beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad,
+                                    np.where(hit, rng_true, 1.0)), np.nan)
+    # Footprint: a cone of the beam's 1/e^2 half-angle at the median range of the chunk (the
+    # pattern's angular size; every shot's own footprint scales with its own range).
+    if np.any(hit):
+        r_med = float(np.median(rng_true[hit]))
+        theta = float(beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, r_med)) / r_med
+    else:
+        theta = max(ch.divergence_half_angle_rad, 1e-9)
+    so, sd, sw = footprint_subrays(o, d, theta, n_sub, rng=None)
+    sub = cast_rays(scene.terrain, so, sd)
+    k = sw.shape[1]
+    t_sub = np.where(sub.hit, sub.ranges_m, np.inf).reshape(n, b, k)
+    t_sub = np.where(valid.reshape(n, b, 1), t_sub, np.inf)
+    with np.errstate(invalid="ignore"):
+        sub_r = rays.range_offset_m[..., None] + t_sub * rays.metres_per_unit[..., None]
+    sub_r = np.where(np.isfinite(t_sub), sub_r, np.inf)
+    return ChunkGeometry(
+        t_s=t_s, platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
+        closing_speed_mps=closing, rays=rays, range_true_m=rng_true,
+        hit_xyz_m=np.where(hit[..., None], centre.points_m.reshape(n, b, 3), np.nan),
+        incidence_rad=inc, material=mat, beam_radius_m=w, sub_range_m=sub_r,
+        sub_weight=sw.reshape(n, b, k), sub_incidence_rad=sub.incidence_rad.reshape(n, b, k),
+        sub_material=sub.material_codes.reshape(n, b, k))
+
+
+def check_crosses_scene(plan: SurveyPlan, scene, config, source: str, n_probe: int = 64):
+    """ConfigError unless some probe shot over the span hits the terrain (before any work)."""
+    if plan.n_shots == 0:
+        return
+    idx = np.unique(np.linspace(0, plan.n_shots - 1, min(n_probe, plan.n_shots)).astype(int))
+    t = plan.t_s[idx]
+    try:
+        g = chunk_geometry(plan, scene, config, t, np.random.SeedSequence(0), 1)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: [platform]: {exc}") from None
+    if not np.any(np.isfinite(g.range_true_m)):
+        x0, x1, y0, y1 = scene.bounds_xy
+        px, py = g.platform_xyh[:, 0], g.platform_xyh[:, 1]
+        raise ConfigError(
+            f"{source}: [platform] the path never crosses the scene {Path(scene.path).name}: "
+            f"no beam of {idx.size} shots spread over survey.start_s..stop_s hits the terrain "
+            f"(platform x {px.min():.0f}..{px.max():.0f} m, y {py.min():.0f}..{py.max():.0f} m; "
+            f"scene x {x0:.0f}..{x1:.0f} m, y {y0:.0f}..{y1:.0f} m)")

@@ -1,0 +1,346 @@
+"""Survey runs (``chirplidar run``): geometry, measurements, results files and bad input.
+
+Reference values:
+* flat terrain: the range along the ellipsoid normal from a platform at ellipsoidal height H to
+  the surface of ellipsoidal height h is exactly H - h (definition of geodetic height); an
+  off-nadir range is computed independently here with pyproj (bisection on the geodetic height
+  along the straight ECEF ray);
+* sloped plane: a footprint of diameter D on a plane tilted by alpha to the beam's normal plane
+  spans tan(alpha) D in range (plane geometry);
+* footprint-broadened beat: a line whose ranges spread with standard deviation sigma_R has a
+  beat spread of kappa 2 sigma_R / c (kappa the chirp rate, c the speed of light).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from pyproj import Transformer
+
+from chirplidar.cli import main
+from chirplidar.config.loader import ConfigError
+from chirplidar.mission.results import read_netcdf
+from chirplidar.mission.runner import run_mission
+
+ROOT = Path(__file__).resolve().parents[1]
+INSTRUMENT = ROOT / "missions" / "thesis_field_instrument.toml"
+ICESAT = ROOT / "missions" / "icesat_like.toml"
+DATE = "2026-01-01T00:00:00Z"   # fixed date_created: identical files for identical runs
+
+
+def _scene(tmp: Path, name: str, terrain: str, *, epsg: int = 3413, lat=69.0, lon=-49.0,
+           size=4000.0, res=50.0, effects="[]") -> Path:
+    p = tmp / f"{name}.toml"
+    p.write_text(f"""
+name = "{name}"
+epsg = {epsg}
+effects = {effects}
+[terrain]
+source = "{terrain.split()[0]}"
+center_lat_deg = {lat}
+center_lon_deg = {lon}
+size_x_m = {size}
+size_y_m = {size}
+resolution_m = {res}
+[terrain.{terrain.split()[0]}]
+{terrain.split(' ', 1)[1]}
+[atmosphere]
+cn2_profile = "none"
+extinction_per_m = 0.0
+scale_height_m = 1200.0
+""")
+    return p
+
+
+def _uav_mission(tmp: Path, scene: Path, name: str = "m", *, altitude=1000.0, mode="absolute",
+                 beams='pattern = "custom"\noff_nadir_deg = [0.0, 20.0]\nazimuth_deg = [90.0, 90.0]',
+                 waypoints="[[-800.0, 0.0], [800.0, 0.0]]", polygon=None, extra="",
+                 extends=INSTRUMENT, stop="10.0", subrays=7) -> Path:
+    path = (f"survey_polygon_m = {polygon}\nline_spacing_m = 200.0\nheading_deg = 90.0"
+            if polygon else f"waypoints_m = {waypoints}")
+    p = tmp / f"{name}.toml"
+    p.write_text(f"""
+extends = "{extends}"
+seed = 5
+[scene]
+file = "{scene.name}"
+[platform]
+kind = "uav"
+[platform.uav]
+coordinates = "scene_centre"
+{path}
+speed_mps = 20.0
+altitude_m = {altitude}
+altitude_mode = "{mode}"
+[attitude]
+roll_deg = 0.0
+pitch_deg = 0.0
+yaw_deg = 0.0
+jitter_rad_rms = 0.0
+[beams]
+{beams}
+[survey]
+tier = "link"
+prf_hz = 20.0
+start_s = 0.0
+stop_s = {stop}
+epoch_utc = "2026-07-01T00:00:00Z"
+detection_threshold_db = 10.0
+subrays_per_beam = {subrays}
+{extra}
+""")
+    return p
+
+
+# "Noise off": 60 dB more signal lowers the Cramer-Rao range scatter 1000-fold (to < 0.1 mm).
+QUIET = ["channel.extra_attenuation_db=-60"]
+
+
+def _geodetic_range(x, y, h, az, off, epsg, h_target):
+    """Independent range: platform (x, y, h) -> ECEF with pyproj, the beam from the local
+    east-north-up frame (azimuth from true north, off-nadir angle), bisection on the geodetic
+    height along the straight ECEF ray until it equals h_target."""
+    to_geo = Transformer.from_crs(epsg, 4326, always_xy=True)
+    lon, lat = to_geo.transform(x, y)
+    to_ecef = Transformer.from_crs(4979, 4978, always_xy=True)
+    to_geod = Transformer.from_crs(4978, 4979, always_xy=True)
+    p = np.array(to_ecef.transform(lon, lat, h))
+    la, lo = np.radians(lat), np.radians(lon)
+    east = np.array([-np.sin(lo), np.cos(lo), 0.0])
+    north = np.array([-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)])
+    up = np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+    d = np.sin(off) * (np.sin(az) * east + np.cos(az) * north) - np.cos(off) * up
+    lo_t, hi_t = 0.0, 3.0 * (h - h_target) / np.cos(off) + 10.0
+    for _ in range(80):
+        mid = 0.5 * (lo_t + hi_t)
+        q = p + mid * d
+        if to_geod.transform(*q)[2] > h_target:
+            lo_t = mid
+        else:
+            hi_t = mid
+    return 0.5 * (lo_t + hi_t)
+
+
+@pytest.fixture(scope="module")
+def flat_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("flat")
+    scene = _scene(tmp, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
+    mission = _uav_mission(tmp, scene, altitude=1100.0)
+    res = run_mission(mission, overrides=QUIET, out=tmp / "flat.nc", cache_dir=tmp / "cache",
+                      date_created=DATE)
+    return tmp, mission, res
+
+
+def test_flat_terrain_ranges_exact_and_heights(flat_run):
+    _, _, res = flat_run
+    ds = res.dataset
+    assert ds.sizes["trajectory"] == 2 and ds.sizes["obs"] == 200
+    nadir, tilted = ds.isel(trajectory=0), ds.isel(trajectory=1)
+    # nadir along the ellipsoid normal: exactly H - h = 1000 m
+    np.testing.assert_allclose(nadir["range_true"], 1000.0, atol=1e-3)
+    np.testing.assert_allclose(tilted["off_nadir_angle"], np.radians(20.0), atol=1e-9)
+    for k in (0, 57, 199):
+        ref = _geodetic_range(float(tilted["platform_x"][k]), float(tilted["platform_y"][k]),
+                              float(tilted["platform_altitude"][k]),
+                              float(tilted["azimuth_angle"][k]), float(tilted["off_nadir_angle"][k]),
+                              3413, 100.0)
+        assert abs(float(tilted["range_true"][k]) - ref) < 1e-3
+    assert np.all(ds["detected"] == 1)
+    for b in range(2):
+        err = ds["h_li"].isel(trajectory=b) - 100.0
+        assert abs(float(err.mean())) <= 0.01
+        np.testing.assert_allclose(ds["h_li_true"].isel(trajectory=b), 100.0, atol=1e-6)
+
+
+def test_results_file_is_cf_and_round_trips(flat_run):
+    tmp, _, res = flat_run
+    back = read_netcdf(res.path)
+    xr.testing.assert_identical(res.dataset, back)
+    for name, var in back.variables.items():
+        assert "long_name" in var.attrs, name
+        if "grid_mapping_name" not in var.attrs:
+            assert "units" in var.attrs, name
+    assert back.attrs["Conventions"] == "CF-1.8"
+    assert back.attrs["featureType"] == "trajectory"
+    assert "[survey]" in back.attrs["configuration"] and "seed" in back.attrs
+    assert back.attrs["scene_configuration"].strip().startswith("name")
+    assert back["crs"].attrs["grid_mapping_name"] == "polar_stereographic"
+
+
+def test_same_seed_same_output(flat_run):
+    tmp, mission, res = flat_run
+    again = run_mission(mission, overrides=QUIET, out=tmp / "again.nc", cache_dir=tmp / "cache",
+                        date_created=DATE)
+    a, b = res.dataset.copy(), again.dataset.copy()
+    for d in (a, b):
+        d.attrs.pop("history")
+    xr.testing.assert_identical(a, b)
+    other = run_mission(mission, overrides=QUIET, out=tmp / "other.nc", seed=6,
+                        cache_dir=tmp / "cache", date_created=DATE)
+    assert not np.array_equal(other.dataset["range_measured"], res.dataset["range_measured"])
+
+
+def test_sloped_plane_spread_and_rf_broadening(tmp_path):
+    """Footprint range spread = tan(slope) x footprint diameter; the rf beat broadens with it."""
+    from chirplidar.mission.measure import sub_ray_power_fractions
+    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.survey import chunk_geometry
+    from chirplidar.tiers.budget import make_budget
+    from chirplidar.units import SPEED_OF_LIGHT_M_S
+
+    slope = 30.0
+    # Wide beam (10 mrad) so the footprint (20 m from 1 km) spans far more than the 0.75 m
+    # range resolution of the 200 MHz chirp.
+    wide = ["channel.divergence_half_angle_rad=0.01", "processing.averages=1",
+            "survey.prf_hz=50", *QUIET]
+    sloped = _scene(tmp_path, "slope", f'sloped slope_deg = {slope}\nazimuth_deg = 90.0\n'
+                    'height_m = 100.0\nmaterial = "snow"')
+    beams = 'pattern = "nadir"'
+    ms = _uav_mission(tmp_path, sloped, "ms", altitude=1100.0, beams=beams, stop="0.4",
+                      subrays=128)
+    config, scene, plan = prepare(ms, overrides=wide, cache_dir=tmp_path / "c")
+    g = chunk_geometry(plan, scene, config, plan.t_s, np.random.SeedSequence(1), 128)
+    diam = 2 * g.range_true_m[:, 0] * np.tan(
+        float(g.beam_radius_m[0, 0]) / float(g.range_true_m[0, 0]))
+    r = g.sub_range_m[:, 0]
+    spread = r.max(axis=1) - r.min(axis=1)
+    # Across the beam's normal plane the footprint diameter is diam; on a plane tilted by
+    # alpha the ranges of its two edges differ by tan(alpha) diam (to first order in the cone).
+    np.testing.assert_allclose(spread, np.tan(np.radians(slope)) * diam, rtol=0.05)
+
+    # rf tier: the footprint's sub-rays as delayed echoes with independent phases (as
+    # measure_rf passes them for a speckled surface). One shot's spectrum is a speckle pattern
+    # across the spread (its own 3 dB width reads one grain), so the line shape is the spectrum
+    # averaged over shots: it must widen to the spread of the footprint's beat frequencies.
+    from chirplidar.tiers.echoes import Echoes
+    from chirplidar.tiers.rf import simulate_rf
+    from chirplidar.config.loader import config_with
+    from chirplidar.mission.measure import _node_config
+
+    bud = make_budget(config)
+    frac = sub_ray_power_fractions(config, scene, g)[0, 0]
+    keep = frac > 0
+    r0 = float(np.sum(frac * r[0]) / frac.sum())
+    dtau = 2 * config.channel.group_index * (r[0][keep] - r0) / SPEED_OF_LIGHT_M_S
+    cfg = config_with(_node_config(config, []), {"channel.distance_m": r0,
+                                                 "simulation.sample_rate_hz": 1.2e9,
+                                                 "channel.extra_attenuation_db": -20.0})
+    rng = np.random.default_rng(3)
+    batch = 48
+
+    def mean_spectrum(delays):
+        phases = rng.uniform(0, 2 * np.pi, (batch, delays.size))
+        out = simulate_rf(cfg, rng, batch=batch, keep_spectrum=True,
+                          echoes=Echoes(delays, frac[keep], phases))
+        return out["spectrum"]["f_hz"], np.mean(out["spectrum"]["psd_w_per_hz"], axis=0)
+
+    def width(f, psd):
+        """Frequency span holding the central 76 % of the line's power (the FWHM for a
+        Gaussian line); quantiles are robust to the residual speckle ripple of a finite average,
+        which biases a half-maximum width low."""
+        k = int(np.argmax(psd))
+        span = (f > f[k] - 3e6) & (f < f[k] + 3e6)   # +-3 MHz: the line and its skirts
+        c = np.cumsum(psd[span])
+        c = c / c[-1]
+        fs = f[span]
+        return np.interp(0.88, c, fs) - np.interp(0.12, c, fs)
+
+    f, flat_psd = mean_spectrum(np.zeros(keep.sum()))
+    _, slope_psd = mean_spectrum(dtau)
+    # Reference: independent-phase echoes add in power, so the mean spectrum is the flat line
+    # shifted to each echo's beat kappa dtau_k and weighted by its power.
+    k0 = int(np.argmax(flat_psd))
+    w = frac[keep] / frac[keep].sum()
+    ref = sum(wk * np.interp(f - bud.rate_hz_per_s * dk, f - f[k0] + f[k0], flat_psd)
+              for wk, dk in zip(w, dtau))
+    w_flat, w_slope, w_ref = width(f, flat_psd), width(f, slope_psd), width(f, ref)
+    spread_f = bud.rate_hz_per_s * (dtau.max() - dtau.min())
+    assert w_slope > 4 * w_flat                      # broadened ...
+    assert w_slope == pytest.approx(w_ref, rel=0.15)  # ... to the footprint's beat spread
+    assert w_slope < spread_f + w_flat
+    # The survey's rf tier runs the same chain per shot and reports each shot's width.
+    ms1 = _uav_mission(tmp_path, sloped, "ms1", altitude=1100.0, beams=beams, stop="0.1")
+    run = run_mission(ms1, overrides=[*wide, "survey.subrays_per_beam=19",
+                                      "simulation.sample_rate_hz=1.2e9"], tier="rf",
+                      out=tmp_path / "rf.nc", cache_dir=tmp_path / "c", date_created=DATE)
+    assert np.all(run.dataset["detected"] == 1)
+    assert np.all(np.isfinite(run.dataset["beat_width"]))
+
+
+def test_satellite_range_against_pyproj(tmp_path):
+    scene = _scene(tmp_path, "ant", 'flat height_m = 500.0\nmaterial = "snow"', epsg=3031,
+                   lat=-67.75, lon=62.9, size=30000.0, res=1000.0)
+    m = tmp_path / "sat.toml"
+    m.write_text(f'extends = "{ICESAT}"\n[scene]\nfile = "{scene.name}"\n')
+    res = run_mission(m, overrides=["survey.start_s=-0.01", "survey.stop_s=0.01",
+                                    "system.reference_delay_s=3.33e-3"],
+                      out=tmp_path / "sat.nc", cache_dir=tmp_path / "c", date_created=DATE)
+    ds = res.dataset
+    assert ds.sizes["trajectory"] == 6
+    for b in (0, 2, 5):
+        t = ds.isel(trajectory=b, obs=int(ds.sizes["obs"]) // 2)
+        assert 480e3 < float(t["range_true"]) < 520e3
+        ref = _geodetic_range(float(t["platform_x"]), float(t["platform_y"]),
+                              float(t["platform_altitude"]), float(t["azimuth_angle"]),
+                              float(t["off_nadir_angle"]), 3031, 500.0)
+        assert abs(float(t["range_true"]) - ref) < 0.01
+
+
+def test_cli_run_and_view(flat_run, tmp_path):
+    tmp, mission, res = flat_run
+    out = tmp_path / "cli.nc"
+    assert main(["run", str(mission), "--out", str(out), "--no-progress", "--set", *QUIET]) == 0
+    png = tmp_path / "view.png"
+    assert main(["view", str(out), "--png", str(png), "--var", "snr_db"]) == 0
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(png)[..., :3]
+    flat = img.reshape(-1, 3)
+    background = np.median(flat, axis=0)
+    assert np.mean(np.any(np.abs(flat - background) > 0.05, axis=1)) > 0.05
+    assert len(np.unique(np.round(flat * 255).astype(int), axis=0)) > 100
+
+
+def test_existing_output_needs_overwrite(flat_run, capsys):
+    tmp, mission, res = flat_run
+    before = res.path.read_bytes()
+    mtime = os.stat(res.path).st_mtime_ns
+    code = main(["run", str(mission), "--out", str(res.path), "--no-progress"])
+    assert code == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert res.path.read_bytes() == before and os.stat(res.path).st_mtime_ns == mtime
+
+
+def test_self_intersecting_polygon_is_refused(tmp_path):
+    scene = _scene(tmp_path, "flat3", 'flat height_m = 100.0\nmaterial = "snow"')
+    bowtie = "[[-500.0, -500.0], [500.0, 500.0], [500.0, -500.0], [-500.0, 500.0]]"
+    m = _uav_mission(tmp_path, scene, polygon=bowtie)
+    with pytest.raises(ConfigError, match=r"m\.toml.*platform\.uav\.survey_polygon_m.*self-intersect"):
+        run_mission(m, out=tmp_path / "x.nc", cache_dir=tmp_path / "c")
+    assert not (tmp_path / "x.nc").exists()
+
+
+def test_path_that_misses_the_scene(tmp_path):
+    scene = _scene(tmp_path, "flat4", 'flat height_m = 100.0\nmaterial = "snow"')
+    m = _uav_mission(tmp_path, scene, waypoints="[[10000.0, 10000.0], [12000.0, 10000.0]]")
+    with pytest.raises(ConfigError, match=r"m\.toml.*\[platform\].*never crosses the scene"):
+        run_mission(m, out=tmp_path / "x.nc", cache_dir=tmp_path / "c")
+
+
+def test_missing_scene_file_named(tmp_path):
+    m = _uav_mission(tmp_path, tmp_path / "nowhere.toml")
+    with pytest.raises(ConfigError, match=r"scene\.file: nowhere\.toml does not exist"):
+        run_mission(m, out=tmp_path / "x.nc")
+
+
+def test_shipped_missions_plan(tmp_path):
+    """Both shipped missions load, plan and cross their scenes (no shots simulated)."""
+    from chirplidar.mission.runner import prepare
+
+    for name, beams in (("greenland_uav", 1), ("icesat_like", 6)):
+        config, scene, plan = prepare(ROOT / "missions" / f"{name}.toml")
+        assert plan.beams.n_beams == beams and plan.n_shots > 0
