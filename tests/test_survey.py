@@ -344,3 +344,29 @@ def test_shipped_missions_plan(tmp_path):
     for name, beams in (("greenland_uav", 1), ("icesat_like", 6)):
         config, scene, plan = prepare(ROOT / "missions" / f"{name}.toml")
         assert plan.beams.n_beams == beams and plan.n_shots > 0
+
+
+def test_turbulence_sees_the_scene_profile():
+    """The turbulence effect's constant Cn^2 reproduces the Fried parameter of the scene's HV-5/7
+    profile along the slant path (r0 ~ (Cn^2 L)^(-3/5), Andrews & Phillips 2005)."""
+    from chirplidar.atmosphere import fried_parameter
+    from chirplidar.config.loader import config_with
+    from chirplidar.mission.measure import _equivalent_cn2
+    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.survey import chunk_geometry
+
+    config, scene, plan = prepare(ROOT / "missions" / "greenland_uav.toml",
+                                  overrides=["survey.stop_s=2"])
+    g = chunk_geometry(plan, scene, config, plan.t_s, np.random.SeedSequence(0), 1)
+    config = config_with(config, {
+        "effects.coupling.obstruction_ratio": 0.2, "effects.coupling.focal_length_m": 0.6,
+        "effects.coupling.mode_field_radius_m": 4.6e-6,
+        "effects.coupling.fiber_numerical_aperture": 0.14, "effects.coupling.target": "diffuse"})
+    lam = config.laser.wavelength_m
+    r_med = float(np.median(g.range_true_m))
+    cn2 = _equivalent_cn2(config, scene, g, r_med)
+    z_g = float(np.median(g.hit_xyz_m[..., 2]))
+    z_p = float(np.median(g.platform_xyh[:, 2]))
+    r0_scene = float(scene.fried_parameter_m(lam, z_g, z_p, 0.0, wave="spherical"))
+    assert cn2 > 0
+    assert fried_parameter(cn2, lam, r_med, wave="spherical") == pytest.approx(r0_scene, rel=1e-3)

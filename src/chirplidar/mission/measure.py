@@ -118,12 +118,33 @@ def _effects(config, scene, geom, seq, exclude=("doppler",)):
         return np.ones((n, b))
     hit = np.isfinite(geom.range_true_m)
     r_med = float(np.median(geom.range_true_m[hit])) if np.any(hit) else 1.0
-    cfg = config_with(config, {"effects.enabled": list(names), "channel.distance_m": r_med,
-                               "channel.free_space": True})
+    over = {"effects.enabled": list(names), "channel.distance_m": r_med,
+            "channel.free_space": True}
+    if "turbulence" in names:
+        over["channel.cn2_m_minus_2_3"] = _equivalent_cn2(config, scene, geom, r_med)
+    cfg = config_with(config, over)
     out = np.empty((n, b))
     for j in range(b):  # a handful of beams; the shots are vectorised
         out[:, j] = channel_returns(cfg, n, stream(seq, STREAM_EFFECTS + j)).power_factor
     return out
+
+
+def _equivalent_cn2(config, scene, geom, r_med: float) -> float:
+    """The constant Cn^2 over the chunk's median slant path that gives the Fried parameter of the
+    scene's Cn^2 profile along it (r0 ~ (Cn^2)^(-3/5)): the turbulence effect then sees the
+    scene's atmosphere, not the instrument file's bench value."""
+    from ..atmosphere import fried_parameter
+
+    hit = np.isfinite(geom.range_true_m)
+    z_g = float(np.median(geom.hit_xyz_m[..., 2][hit]))
+    z_p = float(np.median(geom.platform_xyh[:, 2]))
+    zen = float(np.median(geom.off_nadir_rad[hit]))
+    wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
+    lam = config.laser.wavelength_m
+    r0 = float(scene.fried_parameter_m(lam, z_g, z_p, zen, wave=wave))
+    if not np.isfinite(r0):
+        return 0.0
+    return float((fried_parameter(1.0, lam, r_med, wave=wave) / r0) ** (5.0 / 3.0))
 
 
 def _interp_table(x_nodes, y_nodes, table, x, y):
