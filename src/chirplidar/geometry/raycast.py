@@ -304,6 +304,22 @@ def footprint_subrays(origins, directions, divergence_half_angle_rad, n_sub: int
     return (np.repeat(o, n_sub, axis=0), sub.reshape(n * n_sub, 3), w)
 
 
+def weighted_range_stats(weights, ranges_m):
+    """Weighted mean and standard deviation of ranges over the last axis.
+
+    weights (..., k) >= 0, zero for sub-rays that missed (their ranges may be inf); ranges_m
+    (..., k). Returns (mean, std, total weight), each (...); mean and std are NaN where the
+    total weight is 0.
+    """
+    tot = weights.sum(axis=-1)
+    ok = tot > 0
+    w = weights / np.where(ok, tot, 1.0)[..., None]
+    r = np.where(weights > 0, ranges_m, 0.0)
+    mean = np.sum(w * r, axis=-1)
+    var = np.sum(w * (r - mean[..., None]) ** 2, axis=-1)
+    return np.where(ok, mean, np.nan), np.where(ok, np.sqrt(var), np.nan), tot
+
+
 def footprint_returns(terrain: Terrain, origins, directions, divergence_half_angle_rad,
                       n_sub: int, rng=None, *, extent_factor: float = 1.0) -> FootprintReturns:
     """Per-shot statistics of a beam's sub-ray hits (see ``footprint_subrays``); vectorised.
@@ -318,13 +334,11 @@ def footprint_returns(terrain: Terrain, origins, directions, divergence_half_ang
     hits = cast_rays(terrain, so, sd)
     hit = hits.hit.reshape(n, m)
     wh = np.where(hit, w, 0.0)
-    frac = wh.sum(axis=1)
+    mean, std, frac = weighted_range_stats(wh, hits.ranges_m.reshape(n, m))
     anyhit = frac > 0
     wn = wh / np.where(anyhit, frac, 1.0)[:, None]
     r = np.where(hit, hits.ranges_m.reshape(n, m), 0.0)
     inc = np.where(hit, hits.incidence_rad.reshape(n, m), 0.0)
-    mean = np.sum(wn * r, axis=1)
-    var = np.sum(wn * (r - mean[:, None]) ** 2, axis=1)
     rmax = np.max(np.where(hit, r, -np.inf), axis=1)
     rmin = np.min(np.where(hit, r, np.inf), axis=1)
     inc_mean = np.sum(wn * inc, axis=1)
@@ -337,7 +351,7 @@ def footprint_returns(terrain: Terrain, origins, directions, divergence_half_ang
     inf = np.inf
     return FootprintReturns(
         range_mean_m=np.where(anyhit, mean, inf),
-        range_std_m=np.where(anyhit, np.sqrt(var), inf),
+        range_std_m=np.where(anyhit, std, inf),
         range_spread_m=np.where(anyhit, rmax - np.where(anyhit, rmin, 0.0), inf),
         incidence_mean_rad=np.where(anyhit, inc_mean, inf),
         material_code=mat,

@@ -43,6 +43,8 @@ import numpy as np
 
 from ..channel.effects import channel_returns
 from ..config.loader import config_with
+from ..doppler import doppler_shift_hz
+from ..geometry.raycast import weighted_range_stats
 from ..target import (cox_munk_mss, lambertian_power_fraction, receiver_cone_half_angle_rad,
                       specular_return_fraction)
 from ..tiers.budget import make_budget, reference_delay_s
@@ -203,17 +205,6 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool):
     return r_nodes, a_nodes, snr_db, t_ov, split
 
 
-def _footprint_stats(frac, sub_range):
-    """Power-weighted mean and standard deviation of the sub-ray ranges (n, b)."""
-    tot = frac.sum(axis=-1)
-    ok = tot > 0
-    w = frac / np.where(ok, tot, 1.0)[..., None]
-    r = np.where(frac > 0, sub_range, 0.0)
-    mean = np.sum(w * r, axis=-1)
-    var = np.sum(w * (r - mean[..., None]) ** 2, axis=-1)
-    return np.where(ok, mean, np.nan), np.where(ok, np.sqrt(var), np.nan), tot
-
-
 def received_power(config, scene, geom, seq, *, exclude_effects=("doppler",)):
     """Per shot-beam: (P_sig [W], power-weighted mean range [m], range std [m], sub-ray power
     fractions (n, b, k) after transmission and effects)."""
@@ -221,14 +212,14 @@ def received_power(config, scene, geom, seq, *, exclude_effects=("doppler",)):
     frac = sub_ray_power_fractions(config, scene, geom)
     scale = _transmission(config, scene, geom) * _effects(config, scene, geom, seq,
                                                           exclude=exclude_effects)
-    mean, std, tot = _footprint_stats(frac, geom.sub_range_m)
+    mean, std, tot = weighted_range_stats(frac, geom.sub_range_m)
     return bud.ptx_w * tot * scale, mean, std, frac * scale[..., None]
 
 
 def doppler_hz(config, scene, geom):
     if "doppler" not in scene.effects:
         return np.zeros_like(geom.closing_speed_mps)
-    return 2.0 * geom.closing_speed_mps / config.laser.wavelength_m
+    return doppler_shift_hz(geom.closing_speed_mps, config.laser.wavelength_m)
 
 
 def measure_link(config, scene, geom, seq) -> dict:
@@ -308,7 +299,6 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
                                            exclude_effects=("doppler", "speckle"))
     n, b = psig.shape
     ok = np.isfinite(r_mean) & (psig > 0)
-    f_d = doppler_hz(config, scene, geom)
     lw = config.laser.linewidth_hz > 0
     enabled = (["phase_noise"] if lw else []) + (["doppler"] if "doppler" in scene.effects else [])
     base = _node_config(config, enabled)
@@ -327,7 +317,7 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
         att = float(10 * np.log10(reference_power_fraction(config, r0) * bud.ptx_w / psig[i, j]))
         over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
         if "doppler" in enabled:
-            over["effects.doppler.radial_velocity_mps"] = float(f_d[i, j] * config.laser.wavelength_m / 2)
+            over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
         cfg = config_with(base, over)
         rng = stream(seq, STREAM_RF + int(flat))
         w = frac[i, j]

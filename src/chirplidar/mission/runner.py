@@ -86,7 +86,7 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
     return config, scene, plan
 
 
-def _per_shot(config, scene, geom, meas) -> dict:
+def _per_shot(geom, meas) -> dict:
     """Schema variables (n, b) of one chunk (transposed to (b, n) when assembled)."""
     n, b = geom.range_true_m.shape
     hit = np.isfinite(geom.range_true_m)
@@ -172,6 +172,9 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
     config, scene, plan = prepare(mission_path, overrides=overrides, tier=tier, seed=seed,
                                   cache_dir=cache_dir)
     sv = config.survey
+    if plan.n_shots == 0:
+        raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
+                          f"{sv.prf_hz:g} Hz holds no shot")
     seeds = chunk_seeds(config.seed, plan.n_chunks)
     parts = []
     bar = None
@@ -194,15 +197,11 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
                 meas = measure.measure_link(config, scene, geom, seeds[i])
                 if bar:
                     bar.update(t.size * plan.beams.n_beams)
-            parts.append(_per_shot(config, scene, geom, meas))
+            parts.append(_per_shot(geom, meas))
     finally:
         if bar:
             bar.close()
-    per_shot = {k: np.concatenate([p[k] for p in parts], axis=0).T if parts
-                else np.zeros((plan.beams.n_beams, 0)) for k in (parts[0] if parts else {})}
-    if not parts or plan.n_shots == 0:
-        raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
-                          f"{sv.prf_hz:g} Hz holds no shot")
+    per_shot = {k: np.concatenate([p[k] for p in parts], axis=0).T for k in parts[0]}
     materials = {NO_SURFACE_CODE: "no_surface",
                  **{c: name for c, name in enumerate(scene.terrain.material_names)}}
     per_shot["beam"] = np.arange(plan.beams.n_beams)

@@ -248,9 +248,8 @@ def _angles(path_frame: str, pos, d, epsg):
         lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
         d_ecef = d
     else:
-        _, ex, ey, up = frames.grid_axes_ecef(pos, epsg)
+        o_ecef, ex, ey, up = frames.grid_axes_ecef(pos, epsg)
         d_ecef = d[..., :1] * ex[:, None] + d[..., 1:2] * ey[:, None] + d[..., 2:] * up[:, None]
-        o_ecef = frames.projected_to_ecef(pos, epsg)
         lat, lon, _ = frames.ecef_to_geodetic(o_ecef[:, 0], o_ecef[:, 1], o_ecef[:, 2])
     enu = frames.enu_basis(lat, lon)  # (n, 3, 3) rows east, north, up
     e, nth, u = (np.einsum("nbj,nj->nb", d_ecef, enu[:, i]) for i in range(3))

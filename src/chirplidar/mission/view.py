@@ -23,10 +23,11 @@ def result_terrain(ds):
 
 def view_result(path, *, var: str = "range_error", png=None):
     """Draw ``path`` (a ``chirplidar run`` output); returns the PNG path or None (window)."""
-    from ..viz.scene3d import render_track
+    from ..viz.scene3d import render_track, showable_variables
 
     ds = read_netcdf(path)
-    if var not in ds.variables:
-        raise ValueError(f"--var {var}: {path} has no variable {var!r}; choose one of "
-                         f"{', '.join(v for v in ds.data_vars if ds[v].ndim == 2)}")
+    showable = showable_variables(ds)
+    if var not in showable:  # before the terrain is loaded
+        raise ValueError(f"--var {var}: {path} has no per-shot variable {var!r}; choose one of "
+                         f"{', '.join(showable)}")
     return render_track(ds, result_terrain(ds), var=var, png=png)
