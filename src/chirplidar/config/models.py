@@ -51,6 +51,11 @@ class Simulation(_Model):
         "analytic",
         description="'analytic' evaluates the waveform at t - tau exactly; 'resample' rounds the "
         "delay to 1/(Fs*upxn) as the thesis's resampling does")
+    baseband_rate_hz: float | None = Field(
+        None, gt=0, description="baseband tier: sample rate of the dechirped beat record (the "
+        "detector's output rate). Unset = twice the processed band's top "
+        "(processing.peak_search_max_hz, else the chirp's start frequency F1 + F0, below which "
+        "every self-chirped beat lies), raised to a fast FFT length")
 
 
 class System(_Model):

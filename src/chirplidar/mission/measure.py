@@ -56,6 +56,8 @@ from .survey import stream
 STREAM_EFFECTS = 100      # + beam index: each beam's effect draws
 STREAM_NOISE = 200        # measurement noise of the link tier
 STREAM_RF = 1_000_000     # + flat shot index: each rf shot's own stream
+STREAM_BASEBAND = 300     # + batch index: each baseband batch's stream
+BASEBAND_BATCH = 256      # shots per baseband call (sorted by range: one range gate per batch)
 
 _RANGE_STEP = 0.01        # relative node spacing in range
 _ATT_STEP_DB = 3.0        # node spacing in attenuation
@@ -334,5 +336,67 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
         out_of_band[i, j] = "beat_out_of_band" in out["flags"]
         if progress is not None:
             progress(1)
+    return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
+                   out_of_band)
+
+
+def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
+    """Baseband-tier measurements of a chunk, in batches of shots: each shot's footprint sub-rays
+    become echoes (as in :func:`measure_rf`), its received power and Doppler per-shot returns.
+
+    Shots are sorted by range and batched; a batch shares one instrument configuration aimed at
+    its median range, so the ``sys.fmaxopt`` range gate (when ``system.reference_delay_s`` is
+    unset) is set per batch of at most BASEBAND_BATCH neighbouring ranges, not per shot; each
+    shot's own delay enters exactly as its echoes' offsets from that range.
+    """
+    from ..channel.effects import ShotReturns
+    from ..tiers.baseband import band_top_hz_or_nyquist, baseband_grid, simulate_baseband
+    from ..tiers.echoes import Echoes
+
+    bud = make_budget(config)
+    band_top = band_top_hz_or_nyquist(config, bud, baseband_grid(config, bud)[0])
+    psig, r_mean, _, frac = received_power(config, scene, geom, seq,
+                                           exclude_effects=("doppler", "speckle"))
+    n, b = psig.shape
+    ok = np.isfinite(r_mean) & (psig > 0)
+    lw = config.laser.linewidth_hz > 0
+    base = _node_config(config, ["phase_noise"] if lw else [])
+    snr = np.zeros((n, b))
+    f_meas, range_meas, width = (np.full((n, b), np.nan) for _ in range(3))
+    no_overlap = np.zeros((n, b), bool)
+    out_of_band = np.zeros((n, b), bool)
+    nu = SPEED_OF_LIGHT_M_S / config.laser.wavelength_m
+    n_grp = config.channel.group_index
+    speckle = "speckle" in scene.effects
+    f_d_all = doppler_hz(config, scene, geom)
+    flat = np.flatnonzero(ok.ravel())
+    flat = flat[np.argsort(r_mean.ravel()[flat], kind="stable")]
+    for batch_index, start in enumerate(range(0, flat.size, BASEBAND_BATCH)):
+        idx = flat[start:start + BASEBAND_BATCH]
+        ii, jj = np.divmod(idx, b)
+        r0 = float(np.median(r_mean[ii, jj]))
+        cfg = config_with(base, {"channel.distance_m": r0, "channel.extra_attenuation_db": 0.0})
+        p_ref = make_budget(cfg).psig_w
+        rng = stream(seq, STREAM_BASEBAND + batch_index)
+        w = frac[ii, jj]                                                  # (m, k)
+        dtau = 2.0 * n_grp * (np.where(w > 0, geom.sub_range_m[ii, jj], r0) - r0) / SPEED_OF_LIGHT_M_S
+        phase = (rng.uniform(0.0, 2 * np.pi, dtau.shape) if speckle
+                 else -2 * np.pi * np.mod(nu * dtau, 1.0))
+        per_shot = ShotReturns(power_factor=psig[ii, jj] / p_ref, phase_rad=np.zeros(idx.size),
+                               doppler_hz=f_d_all[ii, jj])
+        out = simulate_baseband(cfg, rng, batch=idx.size, echoes=Echoes(dtau, w, phase),
+                                shot_returns=per_shot)
+        snr[ii, jj] = db_to_ratio(out["SNR"])
+        f_meas[ii, jj] = out["f_beat_hz"]
+        range_meas[ii, jj] = out["d_rx"]
+        width[ii, jj] = out["d_3dB"] * 2.0 * n_grp * bud.rate_hz_per_s / SPEED_OF_LIGHT_M_S
+        # Per-shot flags from each shot's own lag (the tier's flags describe the batch's centre).
+        delay = 2.0 * n_grp * r_mean[ii, jj] / SPEED_OF_LIGHT_M_S
+        lag = np.mod(delay - make_budget(cfg).ref_delay_s, bud.train.period_s)
+        f_b = bud.rate_hz_per_s * lag
+        no_overlap[ii, jj], out_of_band[ii, jj] = beat_flags(cfg, bud, lag, f_b)
+        out_of_band[ii, jj] |= f_b > band_top
+        if progress is not None:
+            progress(idx.size)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band)

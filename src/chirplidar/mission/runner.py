@@ -78,9 +78,12 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
         raise ConfigError(f"{src} with scene {scene_path.name} (effects = "
                           f"{list(scene.effects)}): {str(exc).removeprefix('override: ')}") from None
     if config.survey is not None and config.survey.tier == "baseband":
-        raise ConfigError(f"{src}: survey.tier = 'baseband' is not available yet (it arrives "
-                          "with the baseband tier); use 'link' for campaigns or 'rf' for short "
-                          "stretches")
+        from ..tiers.baseband import check_supported
+
+        try:
+            check_supported(config)
+        except ValueError as exc:
+            raise ConfigError(f"{src}: survey.tier = 'baseband': {exc}") from None
     plan = plan_survey(config, scene, src)
     check_crosses_scene(plan, scene, config, src)
     return config, scene, plan
@@ -190,9 +193,10 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
                 geom = chunk_geometry(plan, scene, config, t, seeds[i], sv.subrays_per_beam)
             except ValueError as exc:
                 raise ConfigError(f"{mission_path}: [platform]: {exc}") from None
-            if sv.tier == "rf":
-                meas = measure.measure_rf(config, scene, geom, seeds[i],
-                                          progress=bar.update if bar else None)
+            if sv.tier in ("rf", "baseband"):
+                measure_tier = measure.measure_rf if sv.tier == "rf" else measure.measure_baseband
+                meas = measure_tier(config, scene, geom, seeds[i],
+                                    progress=bar.update if bar else None)
             else:
                 meas = measure.measure_link(config, scene, geom, seeds[i])
                 if bar:

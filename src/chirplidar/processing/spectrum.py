@@ -63,18 +63,6 @@ def _dirichlet_kernel(n: int) -> np.ndarray:
     return kern
 
 
-def _dirichlet_dtft(X: np.ndarray, k: int, rows: np.ndarray, n: int) -> np.ndarray:
-    """DTFT of a length-``n`` record at native bins ``k + _OFFSETS[rows]``, from its DFT ``X``.
-
-    X(nu) = sum_m X_m K(nu - m), over the bins within _KERNEL_HALF_WIDTH of bin ``k``.
-    """
-    lo = max(k - _KERNEL_HALF_WIDTH, 0)
-    hi = min(k + _KERNEL_HALF_WIDTH + 1, X.size)
-    first_col = lo - (k - _KERNEL_HALF_WIDTH)
-    kern = _dirichlet_kernel(n)[rows, first_col:first_col + (hi - lo)]
-    return kern @ X[lo:hi]
-
-
 def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
     """Vertex offset of the parabola through three equally spaced points (in steps)."""
     den = y_m1 - 2.0 * y0 + y_p1
@@ -83,16 +71,47 @@ def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
     return float(np.clip(0.5 * (y_m1 - y_p1) / den, -0.5, 0.5))
 
 
-def _crossing(x: np.ndarray, y: np.ndarray, level: float, start: int, step: int) -> float | None:
-    """First x where y falls below ``level`` walking from ``start`` by ``step`` (linear interp)."""
-    seg = y[start::step] if step > 0 else y[start::-1]
-    below = np.flatnonzero(seg < level)
-    if below.size == 0 or below[0] == 0:
-        return None
-    j = start + step * int(below[0])          # first point below; j - step is at or above
-    y0, y1 = y[j - step], y[j]
-    frac = (y0 - level) / (y0 - y1) if y0 != y1 else 0.0
-    return float(x[j - step] + frac * (x[j] - x[j - step]))
+def _parabolic_batch(y_m1, y0, y_p1):
+    """Vectorised :func:`_parabolic` (same rule: no vertex unless the parabola opens downward)."""
+    den = y_m1 - 2.0 * y0 + y_p1
+    ok = (den < 0) & np.isfinite(den)
+    d = 0.5 * (y_m1 - y_p1) / np.where(ok, den, -1.0)
+    return np.where(ok, np.clip(d, -0.5, 0.5), 0.0)
+
+
+def _crossings(x: np.ndarray, y: np.ndarray, level: np.ndarray, start: np.ndarray,
+               lo: np.ndarray, hi: np.ndarray):
+    """Per row b, where y[b] first falls below level[b] walking left and right from start[b]
+    (linear interpolation), looking only within indices lo[b]..hi[b]; NaN where it never does.
+
+    ``x`` is (L,) or (B, L); ``y`` is (B, L).
+    """
+    batch, n = y.shape
+    idx = np.arange(n)
+    below = (y < level[:, None]) & (idx >= lo[:, None]) & (idx <= hi[:, None])
+    rows = np.arange(batch)
+    xb = np.broadcast_to(x, y.shape)
+    # Left: the largest j < start below the level; right: the smallest j > start.
+    left = np.where(below & (idx < start[:, None]), idx, -1).max(axis=1)
+    right = np.where(below & (idx > start[:, None]), idx, n).min(axis=1)
+    start_ok = y[rows, start] >= level       # a walk that starts below the level finds nothing
+    out = []
+    for j, nb in ((left, left + 1), (right, right - 1)):
+        found = (j >= 0) & (j < n) & start_ok
+        jj, kk = np.clip(j, 0, n - 1), np.clip(nb, 0, n - 1)
+        y0, y1 = y[rows, kk], y[rows, jj]            # y0 at or above the level, y1 below
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = np.where(y0 != y1, (y0 - level) / (y0 - y1), 0.0)
+        val = xb[rows, kk] + frac * (xb[rows, jj] - xb[rows, kk])
+        out.append(np.where(found, val, np.nan))
+    return out
+
+
+def _window_mean(cs: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sum, count) of rows over index ranges [a, b) from prefix sums ``cs`` (B, L + 1)."""
+    rows = np.arange(cs.shape[0])
+    b = np.maximum(a, b)
+    return cs[rows, b] - cs[rows, a], b - a
 
 
 def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
@@ -108,18 +127,39 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
     transfer : callable f_hz -> complex gain (detector response of a linear chain), or None. Only
         its power gain |H(f)|^2 matters to the spectrum, so it is applied to the PSD.
     """
-    v = np.asarray(v, dtype=float)
+    v = np.asarray(v)
     if v.ndim != 3:
         raise ValueError("analyze_records expects (batch, averages, N) records")
-    batch, n_avg, n = v.shape
+    n = v.shape[-1]
     m = n * zero_pad
-    if averaging == "coherent":
+    if averaging == "coherent" and v.shape[1] > 1:
         v = v.mean(axis=1, keepdims=True)
     X = scipy.fft.rfft(v, n=m, axis=-1, workers=-1)
-    f = np.arange(X.shape[-1]) * (fs_hz / m)
     # One-sided PSD in W/Hz (eqs. 2.6.3-2.6.4 made one-sided).
     power = X.real ** 2 + X.imag ** 2
     psd = (2.0 / (n * fs_hz * load_ohm)) * (power[:, 0] if power.shape[1] == 1 else power.mean(axis=1))
+    return analyze_spectrum(psd, fs_hz, n, zero_pad=zero_pad, rbw_hz=rbw_hz,
+                            highpass_hz=highpass_hz, peak_method=peak_method,
+                            noise_span_hz=noise_span_hz, noise_guard_hz=noise_guard_hz,
+                            transfer=transfer, keep_spectrum=keep_spectrum,
+                            search_max_hz=search_max_hz, dft=X, load_ohm=load_ohm)
+
+
+def analyze_spectrum(psd: np.ndarray, fs_hz: float, n: int, *, zero_pad: int, rbw_hz: float,
+                     highpass_hz: float, peak_method: str, noise_span_hz: float,
+                     noise_guard_hz: float, transfer=None, keep_spectrum: bool = False,
+                     search_max_hz: float | None = None, dft: np.ndarray | None = None,
+                     load_ohm: float | None = None) -> PeakResult:
+    """Peak, 3 dB points, noise level and SNR of one-sided PSDs (batch, m // 2 + 1) in W/Hz of
+    records of ``n`` samples zero-padded to m = n x ``zero_pad`` (before the detector transfer).
+
+    The 'dtft' method needs the records' DFT ``dft`` (batch, averages, m // 2 + 1) and
+    ``load_ohm``; 'bin' and 'parabolic' read the PSD only. Every step is vectorised over the batch.
+    """
+    psd = np.array(psd, dtype=float)
+    batch, n_bins = psd.shape
+    m = n * zero_pad
+    f = np.arange(n_bins) * (fs_hz / m)
     if transfer is not None:
         h = transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f)
         psd *= h.real ** 2 + h.imag ** 2
@@ -131,67 +171,83 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
         raise ValueError("no FFT bin between processing.highpass_hz (sys.f_highpass) and the peak "
                          "search maximum")
     first = int(np.argmax(search))
-
-    out = {k: np.empty(batch) for k in ("f", "p", "nz", "lo", "hi")}
-    for b in range(batch):
-        spec = psd[b]
-        kp = int(np.argmax(np.where(search, spec, -np.inf)))
-        f_pk, p_pk = f[kp], spec[kp]
-        fine_nu = fine_p = None
-        if peak_method == "parabolic" and 0 < kp < spec.size - 1:
-            lg = np.log(np.maximum(spec[kp - 1:kp + 2], np.finfo(float).tiny))
-            d = _parabolic(*lg)
-            f_pk = f[kp] + d * fs_hz / m
-            p_pk = float(np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
-        elif peak_method == "dtft":
-            # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
-            k_nat = int(round(kp / zero_pad))
-            top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
-            nu = k_nat + _OFFSETS
-            rows = (nu * df_native >= highpass_hz) & (nu <= top)
-            nu = nu[rows]
-            Pn = np.zeros(nu.size)
-            for a in range(X.shape[1]):
-                Pn += np.abs(_dirichlet_dtft(X[b, a, ::zero_pad], k_nat, rows, n)) ** 2
-            Pn *= 2.0 / (n * fs_hz * load_ohm * X.shape[1])
-            if transfer is not None:
-                Pn *= np.abs(transfer(nu * df_native)) ** 2
-            i = int(np.argmax(Pn))
-            if 0 < i < nu.size - 1:
-                lg = np.log(np.maximum(Pn[i - 1:i + 2], np.finfo(float).tiny))
-                d = _parabolic(*lg)
-            else:
-                d = 0.0
-            f_pk = (nu[i] + d * _FINE_STEP) * df_native
-            p_pk = float(Pn[i]) if d == 0.0 else float(np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
-            fine_nu, fine_p = nu, Pn
-        # 3 dB points: on the fine DTFT if we have it, else on the (padded) spectrum.
-        half = 0.5 * p_pk
-        lo = hi = None
-        if fine_nu is not None:
-            i = int(np.argmax(fine_p))
-            lo = _crossing(fine_nu * df_native, fine_p, half, i, -1)
-            hi = _crossing(fine_nu * df_native, fine_p, half, i, +1)
-        if lo is None:
-            lo = _crossing(f, spec, half, kp, -1)
-        if hi is None:
-            hi = _crossing(f, spec, half, kp, +1)
-        out["lo"][b] = f[first] if lo is None else lo
-        out["hi"][b] = f[-1] if hi is None else hi
-        # Noise: mean PSD over the span beside the peak, guard bins excluded.
-        i0, i1 = np.searchsorted(f, (f_pk - 0.5 * noise_span_hz, f_pk + 0.5 * noise_span_hz + 1e-9))
-        dist = np.abs(f[i0:i1] - f_pk)
-        sel = (dist > noise_guard_hz) & search[i0:i1]
-        if np.count_nonzero(sel) >= 8:
-            out["nz"][b] = float(np.mean(spec[i0:i1][sel]))
-        else:
-            out["nz"][b] = float(np.mean(spec[(np.abs(f - f_pk) > noise_guard_hz) & search]))
-        out["f"][b] = f_pk
-        out["p"][b] = p_pk * df_native  # tone power, eq. 2.6.6 with df = 1/T
-    noise_in_rbw = out["nz"] * rbw_hz
+    last = int(n_bins - 1 - np.argmax(search[::-1]))
+    rows = np.arange(batch)
+    kp = first + np.argmax(psd[:, first:last + 1], axis=1)
+    f_pk, p_pk = f[kp], psd[rows, kp]
+    tiny = np.finfo(float).tiny
+    lo = hi = None
+    if peak_method == "parabolic":
+        inner = (kp > 0) & (kp < n_bins - 1)
+        k0 = np.clip(kp, 1, n_bins - 2)
+        lg = np.log(np.maximum(np.stack([psd[rows, k0 - 1], psd[rows, k0], psd[rows, k0 + 1]]), tiny))
+        d = np.where(inner, _parabolic_batch(*lg), 0.0)
+        f_pk = np.where(inner, f[kp] + d * fs_hz / m, f_pk)
+        p_pk = np.where(inner, np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d), p_pk)
+    elif peak_method == "dtft":
+        if dft is None or load_ohm is None:
+            raise ValueError("peak_method 'dtft' needs the records' DFT (use analyze_records)")
+        # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
+        k_nat = np.rint(kp / zero_pad).astype(int)
+        top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
+        nu = k_nat[:, None] + _OFFSETS[None, :]                       # (B, F)
+        valid = (nu * df_native >= highpass_hz) & (nu <= top)
+        native = dft[..., ::zero_pad]                                  # (B, A, n // 2 + 1)
+        half_w = _KERNEL_HALF_WIDTH
+        padded = np.zeros(native.shape[:2] + (native.shape[2] + 2 * half_w,), dtype=complex)
+        padded[..., half_w:half_w + native.shape[2]] = native          # bins beyond the ends: 0
+        cols = k_nat[:, None] + _MREL[None, :] + half_w                # (B, 2 half_w + 1)
+        near = np.take_along_axis(padded, np.broadcast_to(cols[:, None, :], native.shape[:2]
+                                                          + cols.shape[1:]), axis=2)
+        fine = np.einsum("fm,bam->baf", _dirichlet_kernel(n), near)
+        Pn = (fine.real ** 2 + fine.imag ** 2).sum(axis=1) * (2.0 / (n * fs_hz * load_ohm
+                                                                     * native.shape[1]))
+        if transfer is not None:
+            Pn *= np.abs(transfer(nu * df_native)) ** 2
+        Pm = np.where(valid, Pn, -np.inf)
+        i = np.argmax(Pm, axis=1)
+        n_fine = _OFFSETS.size
+        has_nb = (i > 0) & (i < n_fine - 1)
+        im, ip = np.clip(i - 1, 0, n_fine - 1), np.clip(i + 1, 0, n_fine - 1)
+        has_nb &= valid[rows, im] & valid[rows, ip]
+        lg = np.log(np.maximum(np.stack([Pn[rows, im], Pn[rows, i], Pn[rows, ip]]), tiny))
+        d = np.where(has_nb, _parabolic_batch(*lg), 0.0)
+        f_pk = (nu[rows, i] + d * _FINE_STEP) * df_native
+        p_pk = np.where(d == 0.0, Pn[rows, i], np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
+        # 3 dB points on the fine DTFT, within its valid rows.
+        v_lo = np.argmax(valid, axis=1)
+        v_hi = n_fine - 1 - np.argmax(valid[:, ::-1], axis=1)
+        lo, hi = _crossings(nu * df_native, Pn, 0.5 * p_pk, i, v_lo, v_hi)
+    elif peak_method != "bin":
+        raise ValueError(f"processing.peak_method must be 'bin', 'parabolic' or 'dtft', got "
+                         f"{peak_method!r}")
+    # 3 dB points on the (padded) spectrum where the fine grid has none.
+    zeros, ends = np.zeros(batch, int), np.full(batch, n_bins - 1)
+    s_lo, s_hi = _crossings(f, psd, 0.5 * p_pk, kp, zeros, ends)
+    lo = s_lo if lo is None else np.where(np.isnan(lo), s_lo, lo)
+    hi = s_hi if hi is None else np.where(np.isnan(hi), s_hi, hi)
+    lo = np.where(np.isnan(lo), f[first], lo)
+    hi = np.where(np.isnan(hi), f[-1], hi)
+    # Noise: mean PSD over the span beside the peak (lo <= f < hi), guard bins excluded, within
+    # the search band; prefix sums make it one pass over the batch.
+    cs = np.zeros((batch, n_bins + 1))
+    np.cumsum(np.where(search, psd, 0.0), axis=1, out=cs[:, 1:])
+    cnt = np.concatenate([[0], np.cumsum(search)])
+    a = np.searchsorted(f, f_pk - 0.5 * noise_span_hz)
+    b = np.searchsorted(f, f_pk + 0.5 * noise_span_hz + 1e-9)
+    g0 = np.searchsorted(f, f_pk - noise_guard_hz)                     # |f - f_pk| <= guard
+    g1 = np.searchsorted(f, f_pk + noise_guard_hz, side="right")
+    ga, gb = np.clip(g0, a, b), np.clip(g1, a, b)
+    s_win = (cs[rows, b] - cs[rows, a]) - (cs[rows, gb] - cs[rows, ga])
+    n_win = (cnt[b] - cnt[a]) - (cnt[gb] - cnt[ga])
+    s_all = cs[:, -1] - (cs[rows, g1] - cs[rows, g0])
+    n_all = cnt[-1] - (cnt[g1] - cnt[g0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        noise = np.where(n_win >= 8, s_win / np.maximum(n_win, 1), s_all / n_all)
+    peak_w = p_pk * df_native  # tone power, eq. 2.6.6 with df = 1/T
     return PeakResult(
-        f_peak_hz=out["f"], peak_power_w=out["p"], noise_psd_w_per_hz=out["nz"],
-        f_lo_hz=out["lo"], f_hi_hz=out["hi"], snr=out["p"] / noise_in_rbw,
+        f_peak_hz=np.asarray(f_pk, float), peak_power_w=np.asarray(peak_w, float),
+        noise_psd_w_per_hz=noise, f_lo_hz=lo, f_hi_hz=hi, snr=peak_w / (noise * rbw_hz),
         spectrum_f_hz=f if keep_spectrum else None,
         spectrum_w_per_hz=psd if keep_spectrum else None,
     )

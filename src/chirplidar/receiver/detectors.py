@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..units import ELEMENTARY_CHARGE_C
 from . import shot_psd, thermal_psd
 
 
@@ -79,3 +80,24 @@ def apd_noise(cfg, resp: float, mean_power_w: float) -> DetectorNoise:
     return DetectorNoise(shot=shot, thermal=thermal, amplifier=float(amp),
                          gain_ohm=a.feedback_resistance_ohm * m, load_ohm=a.feedback_resistance_ohm,
                          bandwidth_hz=bandwidth)
+
+
+def current_noise(rng: np.random.Generator, shape, current_a, dark_a: float, circuit_psd: float,
+                  fs_hz: float) -> np.ndarray:
+    """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw (A).
+
+    Shot: one-sided PSD 2 q I(t), i.e. variance q (I(t) + I_dark) Fs per sample; circuit: one-sided
+    PSD S, variance S Fs / 2. Independent Gaussians, so their sum is one Gaussian. For a balanced
+    pair pass I1 + I2: the difference of two independent noises has the summed variance. The draw
+    always has the full record shape (batch, averages, N), whatever the shape of the current:
+    every record gets its own noise. Unit normals are drawn in float32 (twice as fast; a noise
+    sample needs no 53-bit mantissa); the variance and the result are float64. The rf tier calls
+    it at the full rate, the baseband tier at the detector output rate with the current's slow part.
+    """
+    per_amp = ELEMENTARY_CHARGE_C * fs_hz
+    sigma = np.multiply(current_a, per_amp)               # variance, built in place ...
+    sigma += per_amp * dark_a + 0.5 * circuit_psd * fs_hz
+    np.maximum(sigma, 0.0, out=sigma)                     # (rounding can leave -1e-30 A)
+    np.sqrt(sigma, out=sigma)                             # ... then its square root
+    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(sigma)), dtype=np.float32)
+    return np.multiply(unit, sigma, dtype=np.float64)

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.fft
 
+from ..processing import analyze_records
 from ..processing.spectrum import PeakResult, _parabolic
 from ..receiver import HYBRID_90
 from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
@@ -178,3 +181,63 @@ def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
         noise_w[b] = peak_w[b] / snr[b] / proc.rbw_hz
     return PeakResult(f_peak_hz=lags, peak_power_w=peak_w, noise_psd_w_per_hz=noise_w,
                       f_lo_hz=lo, f_hi_hz=hi, snr=snr)
+
+
+def process_records(config, bud, records: dict, noise, load_ohm: float, flags: list, returns, *,
+                    fs_hz: float, transfer, search_max_hz: float, keep_spectrum: bool, tier: str,
+                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None) -> dict:
+    """The receiver's processing, shared by the rf and baseband tiers: optional squaring (Appendix
+    D), PN correlation or spectrum peak analysis, the phase-diversity arms' summed spectra, and the
+    Table 4.10 outputs.
+
+    ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
+    ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
+    same keyword interface (the baseband tier's direct draw of power-averaged spectra).
+    """
+    proc, sysc = config.processing, config.system
+    extra = dict(extra or {})
+    analyze_main = spectrum_analyzer or analyze_records
+    kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
+              peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
+              noise_guard_hz=proc.noise_guard_hz, transfer=transfer, search_max_hz=search_max_hz)
+    squaring = proc.doppler_recovery == "squaring"
+    if squaring:
+        homodyne = sysc.receiver == "coherent" and sysc.coherent_mode == "homodyne"
+        if "main" not in records or not homodyne or sysc.modulation != "fm_chirp":
+            raise ValueError("processing.doppler_recovery = 'squaring' applies to the self-chirped "
+                             "homodyne FM receiver (thesis Appendix D)")
+        # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
+        y = records["main"]
+        records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
+        flags.append("squaring_recovery")
+        kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
+        kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs_hz / 2)
+    if sysc.modulation == "pn_code":
+        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
+        result = pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc)
+    elif "main" in records:
+        result = analyze_main(records["main"], fs_hz, load_ohm, averaging=proc.averaging,
+                              keep_spectrum=keep_spectrum, **kw)
+    else:
+        r1 = analyze_records(records["arm1"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
+        r2 = analyze_records(records["arm2"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
+        both = np.concatenate([records["arm1"], records["arm2"]], axis=1) if proc.averaging == "power" \
+            else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
+        result = analyze_records(both, fs_hz, load_ohm, averaging="power",
+                                 keep_spectrum=keep_spectrum, **kw)
+        # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
+        # report the sums; the SNR is unchanged.
+        extra.update({"arm1_Crx_w": r1.peak_power_w, "arm2_Crx_w": r2.peak_power_w,
+                      "arm1_snr": r1.snr, "arm2_snr": r2.snr})
+        result = dataclasses.replace(result, peak_power_w=2 * result.peak_power_w,
+                                     noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
+    if squaring:
+        # The line found is 2 f_R; its power and SNR are those of the squared record.
+        result = dataclasses.replace(result, f_peak_hz=result.f_peak_hz / 2,
+                                     f_lo_hz=result.f_lo_hz / 2, f_hi_hz=result.f_hi_hz / 2)
+    if sysc.modulation == "pn_code":
+        return assemble_outputs(config, bud, result, noise, flags, tier=tier, lag_s=result.f_peak_hz,
+                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
+                                power_factor=returns.power_factor)
+    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier=tier,
+                            power_factor=returns.power_factor)

@@ -10,24 +10,20 @@ sampled. The return is one point target, or the coherent sum of a footprint's ec
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from functools import lru_cache
 
 import numpy as np
 import scipy.fft
 
-from ..processing import analyze_records
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
-from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
+from ..receiver.detectors import apd_noise, balanced_noise, current_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..transmitter import mzm_field, wiener_phase
-from ..units import ELEMENTARY_CHARGE_C
 from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_budget,
                      responsivities)
 from ..channel.effects import channel_returns, effect_rng
-from .common import (assemble_outputs, detection_flags, optimal_phase, peak_search_max_hz,
-                     pn_peak)
+from .common import detection_flags, optimal_phase, peak_search_max_hz, process_records
 from .echoes import Echoes
 
 
@@ -36,25 +32,6 @@ def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
     X = scipy.fft.rfft(x, axis=-1, workers=-1)
     X *= single_pole(bandwidth_hz).on_grid(n, fs_hz)
     return scipy.fft.irfft(X, n=n, axis=-1, workers=-1)
-
-
-def _gaussian(rng, shape, current_a: np.ndarray, dark_a: float, circuit_psd: float, fs_hz: float):
-    """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw.
-
-    Shot: one-sided PSD 2 q I(t), i.e. variance q (I(t) + I_dark) Fs per sample; circuit: one-sided
-    PSD S, variance S Fs / 2. Independent Gaussians, so their sum is one Gaussian. For a balanced
-    pair pass I1 + I2: the difference of two independent noises has the summed variance. The draw
-    always has the full record shape (batch, averages, N), whatever the shape of the current:
-    every record gets its own noise. Unit normals are drawn in float32 (twice as fast; a noise
-    sample needs no 53-bit mantissa); the variance and the result are float64.
-    """
-    per_amp = ELEMENTARY_CHARGE_C * fs_hz
-    sigma = np.multiply(current_a, per_amp)               # variance, built in place ...
-    sigma += per_amp * dark_a + 0.5 * circuit_psd * fs_hz
-    np.maximum(sigma, 0.0, out=sigma)                     # (rounding can leave -1e-30 A)
-    np.sqrt(sigma, out=sigma)                             # ... then its square root
-    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(sigma)), dtype=np.float32)
-    return np.multiply(unit, sigma, dtype=np.float64)
 
 
 @lru_cache(maxsize=16)
@@ -222,7 +199,7 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
         if mode == "homodyne":
             # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
             # one draw with the summed variance has the same distribution.
-            i = _gaussian(rng, shape, total, 2 * dark, circuit, fs)
+            i = current_noise(rng, shape, total, 2 * dark, circuit, fs)
             i += diff
             i *= z
             records = {"main": i if gate.size == 1 else i * gate}
@@ -231,7 +208,7 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
             arms = []
             for idx, ik in enumerate((i1, i2)):
                 nz = balanced_noise(config, r1, r2, *mean_p, arm=idx)
-                arms.append(z * (ik + _gaussian(rng, shape, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
+                arms.append(z * (ik + current_noise(rng, shape, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
             records = {"arm1": arms[0], "arm2": arms[1]}
             noise = balanced_noise(config, r1, r2, *mean_p, arm=0)
     elif mode == "heterodyne":
@@ -240,49 +217,11 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     else:
         records, noise, load = _direct(config, bud, rng, sig, t, shape, resp, gate)
 
-    kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
-              peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
-              noise_guard_hz=proc.noise_guard_hz, transfer=transfer,
-              search_max_hz=peak_search_max_hz(config, bud))
-    squaring = proc.doppler_recovery == "squaring"
-    if squaring:
-        if "main" not in records or mode != "homodyne" or sysc.modulation != "fm_chirp":
-            raise ValueError("processing.doppler_recovery = 'squaring' applies to the self-chirped "
-                             "homodyne FM receiver (thesis Appendix D)")
-        # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
-        y = records["main"]
-        records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
-        flags.append("squaring_recovery")
-        kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
-        kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs / 2)
-    if sysc.modulation == "pn_code":
-        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
-        result = pn_peak(records["main"], train.unit(t_lo), fs, load, proc)
-    elif "main" in records:
-        result = analyze_records(records["main"], fs, load, averaging=proc.averaging,
-                                 keep_spectrum=keep_spectrum, **kw)
-    else:
-        r1 = analyze_records(records["arm1"], fs, load, averaging=proc.averaging, **kw)
-        r2 = analyze_records(records["arm2"], fs, load, averaging=proc.averaging, **kw)
-        both = np.concatenate([records["arm1"], records["arm2"]], axis=1) if proc.averaging == "power" \
-            else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
-        result = analyze_records(both, fs, load, averaging="power", keep_spectrum=keep_spectrum, **kw)
-        # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
-        # report the sums; the SNR is unchanged.
-        extra = {"arm1_Crx_w": r1.peak_power_w, "arm2_Crx_w": r2.peak_power_w,
-                 "arm1_snr": r1.snr, "arm2_snr": r2.snr}
-        result = dataclasses.replace(result, peak_power_w=2 * result.peak_power_w,
-                                     noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
-    if squaring:
-        # The line found is 2 f_R; its power and SNR are those of the squared record.
-        result = dataclasses.replace(result, f_peak_hz=result.f_peak_hz / 2,
-                                     f_lo_hz=result.f_lo_hz / 2, f_hi_hz=result.f_hi_hz / 2)
-    if sysc.modulation == "pn_code":
-        return assemble_outputs(config, bud, result, noise, flags, tier="rf", lag_s=result.f_peak_hz,
-                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
-                                power_factor=returns.power_factor)
-    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="rf",
-                            power_factor=returns.power_factor)
+    pn_reference = train.unit(t_lo) if sysc.modulation == "pn_code" else None
+    return process_records(config, bud, records, noise, load, flags, returns, fs_hz=fs,
+                           transfer=transfer, search_max_hz=peak_search_max_hz(config, bud),
+                           keep_spectrum=keep_spectrum, tier="rf", extra=extra,
+                           pn_reference=pn_reference)
 
 
 def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
@@ -295,14 +234,14 @@ def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
         i = resp["pin"] * p
         noise = pin_noise(config, resp["pin"], bud.psig_w)
         dark = c.solar_current_a + c.background_current_a + c.leakage_current_a
-        i_n = i + _gaussian(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + current_noise(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
     else:
         a = config.apd
         i = resp["apd"] * p
         noise = apd_noise(config, resp["apd"], bud.psig_w)
         # Multiplied shot noise with excess factor F, referred to the primary photocurrent.
         f_ex = a.excess_noise_factor
-        i_n = i + _gaussian(rng, shape, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
+        i_n = i + current_noise(rng, shape, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
                             + a.leakage_current_a / a.gain**2, noise.thermal + noise.amplifier, fs)
     v = noise.gain_ohm * _lowpass(i_n, noise.bandwidth_hz, fs)
     if config.system.modulation == "pn_code":
@@ -328,12 +267,12 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
     if h.capped_arm:
         i = r * p1
         noise = balanced_noise(config, r, r, float(np.mean(p1)), 0.0, arm=0)
-        i_n = i + _gaussian(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + current_noise(rng, shape, i, dark, noise.thermal + noise.amplifier, fs)
     else:
         p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         i = r * (p1 - p2)
         noise = balanced_noise(config, r, r, float(np.mean(p1)), float(np.mean(p2)))
-        i_n = i + _gaussian(rng, shape, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + current_noise(rng, shape, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
     # IF band-pass around f_LO and complex envelope (analytic signal shifted down by f_LO).
     n = t.size
     half = if_half_width_hz(config, bud)
