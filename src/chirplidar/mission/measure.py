@@ -376,13 +376,13 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         ii, jj = np.divmod(idx, b)
         r0 = float(np.median(r_mean[ii, jj]))
         cfg = config_with(base, {"channel.distance_m": r0, "channel.extra_attenuation_db": 0.0})
-        p_ref = make_budget(cfg).psig_w
+        bud_batch = make_budget(cfg)
         rng = stream(seq, STREAM_BASEBAND + batch_index)
         w = frac[ii, jj]                                                  # (m, k)
         dtau = 2.0 * n_grp * (np.where(w > 0, geom.sub_range_m[ii, jj], r0) - r0) / SPEED_OF_LIGHT_M_S
         phase = (rng.uniform(0.0, 2 * np.pi, dtau.shape) if speckle
                  else -2 * np.pi * np.mod(nu * dtau, 1.0))
-        per_shot = ShotReturns(power_factor=psig[ii, jj] / p_ref, phase_rad=np.zeros(idx.size),
+        per_shot = ShotReturns(power_factor=psig[ii, jj] / bud_batch.psig_w, phase_rad=np.zeros(idx.size),
                                doppler_hz=f_d_all[ii, jj])
         out = simulate_baseband(cfg, rng, batch=idx.size, echoes=Echoes(dtau, w, phase),
                                 shot_returns=per_shot)
@@ -392,7 +392,7 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         width[ii, jj] = out["d_3dB"] * 2.0 * n_grp * bud.rate_hz_per_s / SPEED_OF_LIGHT_M_S
         # Per-shot flags from each shot's own lag (the tier's flags describe the batch's centre).
         delay = 2.0 * n_grp * r_mean[ii, jj] / SPEED_OF_LIGHT_M_S
-        lag = np.mod(delay - make_budget(cfg).ref_delay_s, bud.train.period_s)
+        lag = np.mod(delay - bud_batch.ref_delay_s, bud.train.period_s)
         f_b = bud.rate_hz_per_s * lag
         no_overlap[ii, jj], out_of_band[ii, jj] = beat_flags(cfg, bud, lag, f_b)
         out_of_band[ii, jj] |= f_b > band_top

@@ -107,13 +107,6 @@ def _crossings(x: np.ndarray, y: np.ndarray, level: np.ndarray, start: np.ndarra
     return out
 
 
-def _window_mean(cs: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sum, count) of rows over index ranges [a, b) from prefix sums ``cs`` (B, L + 1)."""
-    rows = np.arange(cs.shape[0])
-    b = np.maximum(a, b)
-    return cs[rows, b] - cs[rows, a], b - a
-
-
 def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
                     highpass_hz: float, zero_pad: int, peak_method: str, noise_span_hz: float,
                     noise_guard_hz: float, averaging: str = "coherent",

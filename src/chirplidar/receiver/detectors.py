@@ -82,6 +82,15 @@ def apd_noise(cfg, resp: float, mean_power_w: float) -> DetectorNoise:
                          bandwidth_hz=bandwidth)
 
 
+def current_noise_variance(current_a, dark_a: float, circuit_psd: float, fs_hz: float) -> np.ndarray:
+    """Variance per sample (A^2) of shot noise of ``current_a`` + ``dark_a`` plus white circuit
+    noise of one-sided PSD ``circuit_psd``, sampled at ``fs_hz``: q (I + I_dark) Fs + S Fs / 2."""
+    per_amp = ELEMENTARY_CHARGE_C * fs_hz
+    var = np.multiply(current_a, per_amp, dtype=np.float64)
+    var += per_amp * dark_a + 0.5 * circuit_psd * fs_hz
+    return var
+
+
 def current_noise(rng: np.random.Generator, shape, current_a, dark_a: float, circuit_psd: float,
                   fs_hz: float) -> np.ndarray:
     """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw (A).
@@ -94,10 +103,8 @@ def current_noise(rng: np.random.Generator, shape, current_a, dark_a: float, cir
     sample needs no 53-bit mantissa); the variance and the result are float64. The rf tier calls
     it at the full rate, the baseband tier at the detector output rate with the current's slow part.
     """
-    per_amp = ELEMENTARY_CHARGE_C * fs_hz
-    sigma = np.multiply(current_a, per_amp)               # variance, built in place ...
-    sigma += per_amp * dark_a + 0.5 * circuit_psd * fs_hz
+    sigma = current_noise_variance(current_a, dark_a, circuit_psd, fs_hz)  # variance ...
     np.maximum(sigma, 0.0, out=sigma)                     # (rounding can leave -1e-30 A)
-    np.sqrt(sigma, out=sigma)                             # ... then its square root
+    np.sqrt(sigma, out=sigma)                             # ... then its square root, in place
     unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(sigma)), dtype=np.float32)
     return np.multiply(unit, sigma, dtype=np.float64)

@@ -43,8 +43,9 @@ from scipy.special import jv
 from ..channel.effects import ShotReturns, channel_returns, effect_rng
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
-from ..receiver.detectors import balanced_noise, current_noise
+from ..receiver.detectors import balanced_noise, current_noise, current_noise_variance
 from ..transmitter import wiener_phase
+from ..transmitter.mzm import mzm_drive_angles
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import coupler_field_transmission, make_budget, responsivities
 from .common import detection_flags, optimal_phase, peak_search_max_hz, process_records
@@ -84,14 +85,16 @@ def baseband_grid(config, bud) -> tuple[float, int]:
 @lru_cache(maxsize=8)
 def _bessel_table(beta: float, n_max: int) -> np.ndarray:
     """J_n(beta x) for n = 0..n_max on x = linspace(0, 1, _TABLE_POINTS); shape (n_max+1, points)."""
-    x = np.linspace(0.0, 1.0, _TABLE_POINTS)
-    table = jv(np.arange(n_max + 1)[:, None], beta * x[None, :])
+    table = jv(np.arange(n_max + 1)[:, None], beta * _TABLE_W[None, :])
     table.setflags(write=False)
     return table
 
 
+_TABLE_W = np.linspace(0.0, 1.0, _TABLE_POINTS)   # the tables' envelope grid
+
+
 def _lookup(table_row: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.interp(w, np.linspace(0.0, 1.0, _TABLE_POINTS), table_row)
+    return np.interp(w, _TABLE_W, table_row)
 
 
 def _harmonics(alpha: float, beta: float, f_beat_max_hz: float, top_hz: float) -> list[int]:
@@ -119,8 +122,8 @@ class _Product:
     def __init__(self, config, bud, t: np.ndarray, top_hz: float, max_lag_s: float):
         train = bud.train
         self.train = train
-        self.alpha = 0.5 * np.pi * (config.modulator.bias_v + train.dc_v) / config.modulator.v_pi_v
-        self.beta = 0.5 * np.pi * train.amplitude_v / config.modulator.v_pi_v
+        self.alpha, self.beta = mzm_drive_angles(train, config.modulator.bias_v,
+                                                 config.modulator.v_pi_v)
         self.t = t
         self.n_list = _harmonics(self.alpha, self.beta, train.rate_hz_per_s * max_lag_s, top_hz)
         n_max = max(self.n_list)
@@ -278,7 +281,7 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
     # Shot-noise terms whose variance is below 1e-6 of the dark and circuit floor are dropped
     # (the received signal's own shot noise against a mW LO): the noise level moves < 5e-6 dB.
     nz0 = balanced_noise(config, r[0], r[1], 0.0, 0.0)
-    noise_floor = [1e-6 * (2 * dark + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C)]
+    noise_floor = 1e-6 * (2 * dark + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C)
     def _footprint(sl):
         """Complex low-pass product C = sum_k sqrt(w_k) exp(-j phi_k) [a_lo a_k]_low (m, 1, N),
         the signal's slow power sum_k w_k <a_k^2> (m, 1, N) and the LO's (N,), for a block."""
@@ -327,7 +330,7 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
         if mode == "homodyne":
             # i1 - i2 and i1 + i2 from the arms' self terms and cross terms.
             diff = _arm_sum(r, S, (1, -1), s_lo * p_lo, self_sig) + cross_term(cross[0] - cross[1])
-            total = _arm_sum(r, S, (1, 1), s_lo * p_lo, self_sig, floor=noise_floor[0])
+            total = _arm_sum(r, S, (1, 1), s_lo * p_lo, self_sig, floor=noise_floor)
             if abs(cross[0] + cross[1]) > 0:
                 total = total + cross_term(cross[0] + cross[1])
             if ase_current:
@@ -337,7 +340,7 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
             if direct:
                 # Noiseless records and each shot's noise variance per sample (V^2).
                 tot = np.broadcast_to(total, (m, 1, n))[:, 0, 0]
-                var = ELEMENTARY_CHARGE_C * fs * (tot + 2 * dark) + 0.5 * (nz.thermal + nz.amplifier) * fs
+                var = current_noise_variance(tot, 2 * dark, nz.thermal + nz.amplifier, fs)
                 direct_var.append(b.transimpedance_ohm ** 2 * var)
                 outs_main.append(np.broadcast_to(b.transimpedance_ohm * diff, (m, 1, n)))
             else:
@@ -409,8 +412,7 @@ def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, v
 
 def _field_peak(config, bud) -> float:
     """max |cos(alpha + beta w sin phi)| over the drive: 1 if alpha +- beta spans a peak of |cos|."""
-    alpha = 0.5 * np.pi * (config.modulator.bias_v + bud.train.dc_v) / config.modulator.v_pi_v
-    beta = 0.5 * np.pi * bud.train.amplitude_v / config.modulator.v_pi_v
+    alpha, beta = mzm_drive_angles(bud.train, config.modulator.bias_v, config.modulator.v_pi_v)
     lo, hi = alpha - abs(beta), alpha + abs(beta)
     if np.floor(hi / np.pi) > np.floor(lo / np.pi) or np.isclose(np.mod(lo, np.pi), 0.0):
         return 1.0

@@ -19,7 +19,7 @@ from scipy.special import j0
 from ..processing.spectrum import PeakResult
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
-from ..transmitter.mzm import mzm_fundamental_field, mzm_power_fundamental
+from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
 from ..channel.effects import channel_returns
 from .common import assemble_outputs, detection_flags, optimal_phase
@@ -219,8 +219,7 @@ def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
     mean_p1 = 0.5 * loss * (b.lo_power_w + bud.psig_w)
     noise = balanced_noise(config, r, r, mean_p1, mean_p1 if arms == 2 else 0.0,
                            arm=0 if arms == 1 else None)
-    alpha = 0.5 * np.pi * (bias + train.dc_v) / vpi
-    beta = 0.5 * np.pi * train.amplitude_v / vpi
+    alpha, beta = mzm_drive_angles(train, bias, vpi)
     if h.demodulation == "envelope":
         # Fundamental of |cos(alpha + beta w sin phi)| over phi, per envelope value.
         phi = np.linspace(0, 2 * np.pi, 256, endpoint=False)

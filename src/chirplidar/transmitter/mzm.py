@@ -23,7 +23,8 @@ def mzm_field(v_v: np.ndarray, v_pi_v: float) -> np.ndarray:
     return np.cos(0.5 * np.pi * np.asarray(v_v) / v_pi_v)
 
 
-def _alpha_beta(train, bias_v: float, v_pi_v: float) -> tuple[float, float]:
+def mzm_drive_angles(train, bias_v: float, v_pi_v: float) -> tuple[float, float]:
+    """(alpha, beta) of the drive V_b + A w sin(phi): pi (V_b + dc) / (2 V_pi), pi A / (2 V_pi)."""
     alpha = 0.5 * np.pi * (bias_v + train.dc_v) / v_pi_v
     beta = 0.5 * np.pi * train.amplitude_v / v_pi_v
     return alpha, beta
@@ -31,7 +32,7 @@ def _alpha_beta(train, bias_v: float, v_pi_v: float) -> tuple[float, float]:
 
 def mzm_mean_power_transmission(train, bias_v: float, v_pi_v: float) -> float:
     """Period-averaged <|E_out/E_0|^2> for a chirp or PN train."""
-    alpha, beta = _alpha_beta(train, bias_v, v_pi_v)
+    alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
     w = train.envelope_samples()
     if hasattr(train, "chip_rate_hz"):  # +-1 chips: average the two levels
         on = 0.5 * (np.cos(alpha + beta * w) ** 2 + np.cos(alpha - beta * w) ** 2)
@@ -41,11 +42,11 @@ def mzm_mean_power_transmission(train, bias_v: float, v_pi_v: float) -> float:
 
 def mzm_fundamental_field(train, bias_v: float, v_pi_v: float, w: np.ndarray) -> np.ndarray:
     """Amplitude of the field's component at the chirp phase, |2 sin(alpha) J1(beta w)|."""
-    alpha, beta = _alpha_beta(train, bias_v, v_pi_v)
+    alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
     return np.abs(2.0 * np.sin(alpha) * j1(beta * np.asarray(w)))
 
 
 def mzm_power_fundamental(train, bias_v: float, v_pi_v: float, w: np.ndarray) -> np.ndarray:
     """Amplitude of the power's component at the chirp phase, |sin(2 alpha) J1(2 beta w)|."""
-    alpha, beta = _alpha_beta(train, bias_v, v_pi_v)
+    alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
     return np.abs(np.sin(2 * alpha) * j1(2 * beta * np.asarray(w)))
