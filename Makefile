@@ -29,6 +29,9 @@ test: install
 bench: install
 	$(BIN)/chirplidar bench --what shot
 	$(BIN)/chirplidar bench --what raycast
+	$(BIN)/chirplidar bench --what tiers
+	$(BIN)/chirplidar bench --what scale
+	$(BIN)/chirplidar bench --what accuracy --out outputs
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info

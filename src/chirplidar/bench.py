@@ -77,6 +77,45 @@ def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = 
             "ratio": statistics.median(ratios), "n_samples": n}
 
 
+def bench_tiers(mission: str | Path | None = None, overrides: list[str] | None = None,
+                repeats: int = 5, seed: int = 0, baseband_batch: int = 256,
+                link_batch: int = 1_000_000) -> dict[str, float]:
+    """Seconds per shot of the three tiers on one mission (default: the thesis bench, homodyne).
+
+    rf: one shot per call (as :func:`bench_shot`); baseband: a batch of ``baseband_batch`` shots
+    per call; link: a batch of ``link_batch`` shots per call; each per-shot time is the call's time
+    over its shots. The tiers are timed in turn for ``repeats`` rounds after one warm-up call each
+    and each key is the median over the rounds (a shared machine's drift affects them alike).
+    Returns ``rf_shot_s``, ``baseband_shot_s``, ``link_shot_s``, ``baseband_speedup``
+    (rf_shot_s / baseband_shot_s) and ``link_shots_per_s``.
+    """
+    from .config import load_mission
+    from .tiers import simulate_baseband, simulate_link, simulate_rf
+
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    for name, value in (("baseband_batch", baseband_batch), ("link_batch", link_batch)):
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    cfg = load_mission(mission if mission is not None else default_mission_path(), overrides or [])
+    calls = {
+        "rf": (lambda: simulate_rf(cfg, np.random.default_rng(seed), batch=1), 1),
+        "baseband": (lambda: simulate_baseband(cfg, np.random.default_rng(seed),
+                                               batch=int(baseband_batch)), int(baseband_batch)),
+        "link": (lambda: simulate_link(cfg, np.random.default_rng(seed), batch=int(link_batch)),
+                 int(link_batch)),
+    }
+    for fn, _ in calls.values():
+        fn()  # warm-up: caches, FFT plans
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, (fn, shots) in calls.items():
+            times[name].append(time_call(fn, repeats=1, warmup=0) / shots)
+    rf, bb, link = (statistics.median(times[k]) for k in ("rf", "baseband", "link"))
+    return {"rf_shot_s": rf, "baseband_shot_s": bb, "link_shot_s": link,
+            "baseband_speedup": rf / bb, "link_shots_per_s": 1.0 / link}
+
+
 # Settings that switch each effect on for timing (a representative case of each).
 EFFECT_SETTINGS: dict[str, list[str]] = {
     "phase_noise": ["lsr.Lw=1e4"],

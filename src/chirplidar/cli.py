@@ -195,10 +195,18 @@ def cmd_sweep(args) -> int:
 def cmd_run(args) -> int:
     from .mission.runner import format_summary, run_mission
 
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError("--workers and --scheduler are exclusive: --workers N starts a local "
+                         "cluster, --scheduler ADDRESS uses a running one")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise UsageError("--scheduler needs an address, e.g. tcp://127.0.0.1:8786")
     try:
         result = run_mission(args.mission, overrides=args.set or [], tier=args.tier, out=args.out,
                              seed=args.seed, overwrite=args.overwrite,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, workers=args.workers,
+                             scheduler=args.scheduler, resume=args.resume)
     except FileExistsError as exc:
         raise UsageError(str(exc)) from None
     if args.json:
@@ -222,11 +230,53 @@ def cmd_view(args) -> int:
     return 0
 
 
+def _bench_accuracy_or_tiers(args) -> int:
+    """``bench --what tiers`` (seconds per shot of rf, baseband, link) and ``--what accuracy``
+    (the accuracy-versus-time study, written to accuracy_vs_time.{csv,md,png} in --out)."""
+    if args.what == "tiers":
+        from .bench import bench_tiers
+
+        res = bench_tiers(args.mission, args.set or [], repeats=max(1, min(args.repeats, 5)))
+        if args.json:
+            print(_dump_json(res))
+        else:
+            print(f"seconds per shot ({args.mission or 'missions/thesis_bench.toml'}), median of "
+                  f"{max(1, min(args.repeats, 5))} rounds:")
+            print(f"  rf        {res['rf_shot_s'] * 1e3:10.3f} ms   (one shot per call)")
+            print(f"  baseband  {res['baseband_shot_s'] * 1e3:10.3f} ms   (256 shots per call; "
+                  f"x{res['baseband_speedup']:.1f} faster than rf)")
+            print(f"  link      {res['link_shot_s'] * 1e6:10.3f} us   (1,000,000 shots per call; "
+                  f"{res['link_shots_per_s']:.3g} shots/s)")
+        return 0
+    from .analysis.accuracy import run_accuracy_bench
+
+    if args.shots is not None and args.shots < 2:
+        raise UsageError(f"--shots must be >= 2, got {args.shots}")
+    kwargs = {} if args.shots is None else {"shots": args.shots}
+    say = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+    try:
+        rows, paths, elapsed = run_accuracy_bench(args.out, args.mission, args.set or [],
+                                                  progress=say, **kwargs)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(_dump_json({"elapsed_s": elapsed, "files": {k: str(v) for k, v in paths.items()},
+                          "rows": [{k: _json_number(v) for k, v in r.items()} for r in rows]}))
+    else:
+        print(paths["md"].read_text())
+        for path in paths.values():
+            print(f"wrote {path}", file=sys.stderr)
+        print(f"study wall time {elapsed:.0f} s", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench import bench_effects, bench_shot
 
     if args.repeats < 1:
         raise UsageError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.what in ("accuracy", "tiers"):
+        return _bench_accuracy_or_tiers(args)
     if args.what == "raycast":
         from .geometry import bench_raycast
 
@@ -239,6 +289,15 @@ def cmd_bench(args) -> int:
             print(f"  chirplidar cast_rays  {res['project_rays_per_s']:.3g} rays/s")
             print(f"  raw embree            {res['embree_rays_per_s']:.3g} rays/s")
             print(f"  ratio                 {res['ratio']:.2f}  (goal >= 0.7)")
+        return 0
+    if args.what == "scale":
+        from .mission.scale_bench import bench_scale, format_scale
+
+        res = bench_scale(args.mission, args.set or [], repeats=min(args.repeats, 3))
+        if args.json:
+            print(_dump_json({k: res[k] for k in ("serial_s", "workers_2_s", "speedup")}))
+        else:
+            print(format_scale(res))
         return 0
     if args.what == "effects":
         res = bench_effects(args.mission, args.set or [], repeats=args.repeats)
@@ -338,7 +397,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="PATH.nc", default=None,
                    help="results file (default outputs/<mission name>.nc)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the mission's)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing results file")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing results file (and discard the chunks of an "
+                        "unfinished run, unless --resume)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run the chunks on a local Dask cluster of N worker processes "
+                        "(default: serially in this process); same results as a serial run")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the chunks on a running Dask cluster, e.g. tcp://host:8786 (its "
+                        "workers must see the mission, scene and output paths)")
+    p.add_argument("--resume", action="store_true",
+                   help="finish an interrupted run: keep the chunks in <out>.chunks/ and "
+                        "compute only the missing ones (refused if the run differs)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_run)
@@ -352,9 +422,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
-    p.add_argument("--what", choices=("shot", "effects", "raycast"), default="shot",
+    p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers"),
+                   default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
-                        "and off; raycast: our ray casting against raw embree")
+                        "and off; raycast: our ray casting against raw embree; tiers: seconds per "
+                        "shot of the rf, baseband and link tiers; accuracy: the accuracy-versus-"
+                        "time study; scale: the demo mission serially and on 2 Dask workers")
     p.add_argument("--triangles", type=int, default=1_000_000,
                    help="raycast: terrain triangles (default 1,000,000)")
     p.add_argument("--rays", type=int, default=200_000, help="raycast: rays per timing")
@@ -363,9 +436,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
     p.add_argument("--repeats", type=int, default=11, help="timed runs; the median is reported")
+    p.add_argument("--out", default="outputs", metavar="DIR",
+                   help="--what accuracy (the accuracy-versus-time study of every fidelity "
+                        "knob, on missions/thesis_ch5_bench.toml unless --mission): folder for "
+                        "accuracy_vs_time.{csv,md,png} (default outputs). --what tiers prints "
+                        "seconds per shot of the rf, baseband and link tiers")
+    p.add_argument("--shots", type=int, default=None,
+                   help="accuracy: shots per setting (default 120)")
     p.add_argument("--json", action="store_true",
                    help='print {"rf_shot_s", "fft_s", "ratio"} (shot), {"none_s", "<effect>_s", '
-                        '...} (effects) or {"project_rays_per_s", "embree_rays_per_s", "ratio"}')
+                        '...} (effects), {"project_rays_per_s", "embree_rays_per_s", "ratio"} '
+                        '(raycast), {"rf_shot_s", "baseband_shot_s", "link_shot_s", '
+                        '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
+                        '"workers_2_s", "speedup"} (scale) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")

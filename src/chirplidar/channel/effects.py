@@ -139,7 +139,16 @@ def _turbulence(config, returns: ShotReturns, rng: np.random.Generator) -> ShotR
         factor = float(turbulent_coupling_mean(d_over_r0, beta, alpha,
                                                outer_scale_over_d=t.outer_scale_m / d_tel)) / plane
         return dataclasses.replace(returns, power_factor=returns.power_factor * factor)
-    n = max(64, int(np.ceil(4 * d_over_r0)))  # >= 4 pixels per r0 (see atmosphere.coupling)
+    if t.screen_pixels is None:
+        n = max(64, int(np.ceil(4 * d_over_r0)))  # >= 4 pixels per r0 (see atmosphere.coupling)
+    else:
+        n = int(t.screen_pixels)
+        if n < d_over_r0:
+            raise ValueError(
+                f"effects.turbulence.screen_pixels = {n} makes the screen's pixel D / {n} = "
+                f"{d_tel / n:.3g} m coarser than r0 = {d_tel / d_over_r0:.3g} m (D / r0 = "
+                f"{d_over_r0:.3g}): use at least {int(np.ceil(d_over_r0))} pixels, or leave it "
+                "unset for the default max(64, ceil(4 D / r0))")
     screen = MovingScreen(n, d_tel / n, d_tel / d_over_r0, t.outer_scale_m, rng=rng)
     shifts = np.full(returns.power_factor.size, t.transverse_speed_mps * t.shot_interval_s)
     phases = screen.next_apertures(shifts)

@@ -328,6 +328,10 @@ class TurbulenceEffect(_Model):
     transverse_speed_mps: float | None = Field(None, ge=0, description="screen speed across the "
                                                "beam (frozen_flow)")
     shot_interval_s: float | None = Field(None, gt=0, description="time between shots (frozen_flow)")
+    screen_pixels: int | None = Field(
+        None, ge=16, description="frozen_flow: phase-screen samples across the aperture (a "
+        "fidelity knob: >= 16, the pupil-coupling grid's minimum, and the pixel D / screen_pixels "
+        "must not exceed r0); unset = max(64, ceil(4 D / r0)), at least 4 pixels per r0")
 
     @model_validator(mode="after")
     def _frozen(self):

@@ -442,13 +442,18 @@ def check_dataset(ds: xr.Dataset) -> None:
 # writing / reading
 
 
-def _encoding(ds: xr.Dataset) -> dict:
+def _compressed(dtype, ndim: int, size: int) -> bool:
+    """Whether a results variable is stored with zlib level 4 (non-empty float arrays)."""
+    return bool(np.issubdtype(dtype, np.floating) and ndim and size)
+
+
+def _encoding(ds: xr.Dataset, *, compress: bool = True) -> dict:
     enc = {}
     for name, var in ds.variables.items():
         if np.issubdtype(var.dtype, np.floating):
             spec = SCHEMA_BY_NAME.get(name)
             e = {"_FillValue": None if spec and not spec.nan_allowed else np.nan}
-            if var.ndim and var.size:
+            if compress and _compressed(var.dtype, var.ndim, var.size):
                 e.update(zlib=True, complevel=4)
             enc[name] = e
         elif var.ndim or np.issubdtype(var.dtype, np.integer):
@@ -475,17 +480,15 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
-    """Write ``ds`` to ``path`` atomically (temp file in the same directory, fsync, rename).
+def _atomic_write(path, write, *, overwrite: bool) -> Path:
+    """Create ``path`` atomically: ``write(tmp)`` fills a temp file in the same directory, which
+    is fsynced and renamed onto ``path`` (then the directory is fsynced).
 
     An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
-    failure no partial file is left at ``path`` and the temp file is removed. Float variables get
-    ``_FillValue = NaN`` and zlib level 4 compression. Returns the path.
+    failure (or interrupt) no partial file is left at ``path`` and the temp file is removed; a
+    process killed mid-write leaves only the temp file ``.<name>.<random>.tmp``.
     """
-    if not isinstance(ds, xr.Dataset):
-        raise ValueError(f"ds must be an xarray.Dataset, got {type(ds).__name__}")
     path = Path(path)
-    check_dataset(ds)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (pass overwrite=True to replace it)")
     directory = path.parent if str(path.parent) else Path(".")
@@ -496,7 +499,7 @@ def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
     tmp = Path(tmp_name)
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
-        ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=_encoding(ds))
+        write(tmp)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         if overwrite:
@@ -518,6 +521,29 @@ def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_bytes_atomic(path, data: bytes, *, overwrite: bool = True) -> Path:
+    """Write a small file (e.g. a run manifest) atomically, like :func:`write_netcdf`."""
+    return _atomic_write(path, lambda tmp: Path(tmp).write_bytes(data), overwrite=overwrite)
+
+
+def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False,
+                 compress: bool = True) -> Path:
+    """Write ``ds`` to ``path`` atomically (temp file in the same directory, fsync, rename).
+
+    An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
+    failure no partial file is left at ``path`` and the temp file is removed. Float variables get
+    ``_FillValue = NaN`` and zlib level 4 compression (``compress=False``: none, e.g. for
+    temporary chunk files). Returns the path.
+    """
+    if not isinstance(ds, xr.Dataset):
+        raise ValueError(f"ds must be an xarray.Dataset, got {type(ds).__name__}")
+    check_dataset(ds)
+    return _atomic_write(
+        path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4",
+                                       encoding=_encoding(ds, compress=compress)),
+        overwrite=overwrite)
 
 
 def read_netcdf(path) -> xr.Dataset:
@@ -552,9 +578,10 @@ class ChunkWriter:
     ``completed_chunks()`` lists the finished indices (for ``--resume``).
     """
 
-    def __init__(self, path_dir):
+    def __init__(self, path_dir, *, create: bool = True):
         self.path_dir = Path(path_dir)
-        self.path_dir.mkdir(parents=True, exist_ok=True)
+        if create:
+            self.path_dir.mkdir(parents=True, exist_ok=True)
 
     def chunk_path(self, index: int) -> Path:
         if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)) \
@@ -562,9 +589,11 @@ class ChunkWriter:
             raise ValueError(f"index must be an integer in 0..99999, got {index!r}")
         return self.path_dir / f"chunk_{int(index):05d}.nc"
 
-    def write(self, index: int, ds: xr.Dataset, *, overwrite: bool = False) -> Path:
-        """Write chunk ``index`` atomically; an existing chunk raises FileExistsError."""
-        return write_netcdf(ds, self.chunk_path(index), overwrite=overwrite)
+    def write(self, index: int, ds: xr.Dataset, *, overwrite: bool = False,
+              compress: bool = True) -> Path:
+        """Write chunk ``index`` atomically; an existing chunk raises FileExistsError unless
+        ``overwrite``. ``compress=False`` skips zlib (the merged file is compressed anyway)."""
+        return write_netcdf(ds, self.chunk_path(index), overwrite=overwrite, compress=compress)
 
     def completed_chunks(self) -> list[int]:
         """Sorted indices of the chunks on disk (temp files of a killed write are ignored)."""
@@ -583,12 +612,7 @@ class ChunkWriter:
             gone.append(p)
         return gone
 
-    def merge(self, path, *, overwrite: bool = False, n_chunks: int | None = None) -> xr.Dataset:
-        """Concatenate chunks 0..n-1 along ``obs`` and write ``path`` atomically.
-
-        Chunks must be contiguous from 0 (and exactly ``n_chunks`` when given) with the same
-        beams; global attributes come from chunk 0. Returns the merged dataset.
-        """
+    def _check_complete(self, n_chunks: int | None) -> int:
         done = self.completed_chunks()
         if not done:
             raise ValueError(f"path_dir: no chunk files in {self.path_dir}")
@@ -599,12 +623,91 @@ class ChunkWriter:
         extra = [i for i in done if i >= n]
         if extra:
             raise ValueError(f"chunks beyond n_chunks={n} in {self.path_dir}: {extra}")
-        parts = [read_netcdf(self.chunk_path(i)) for i in range(n)]
-        for i, p in enumerate(parts[1:], start=1):
-            if p.sizes.get(TRAJECTORY_DIM) != parts[0].sizes.get(TRAJECTORY_DIM) or \
-                    not np.array_equal(p["beam"].values, parts[0]["beam"].values):
-                raise ValueError(f"chunk {i}: beams differ from chunk 0")
-        merged = xr.concat(parts, dim=OBS_DIM, data_vars="minimal", coords="minimal",
-                           compat="equals", combine_attrs="override", join="exact")
-        write_netcdf(merged, path, overwrite=overwrite)
-        return merged
+        return n
+
+    def merge_to_file(self, path, *, overwrite: bool = False,
+                      n_chunks: int | None = None) -> Path:
+        """Stream chunks 0..n-1 into one file at ``path`` (atomic), chunk by chunk.
+
+        Memory stays bounded by one chunk's variable whatever the number of chunks: the final
+        file is created with the full ``obs`` length (the sum of the chunks'), the definitions
+        (dimensions, variables, dtypes, compression, fill values, attributes, global attributes)
+        copied from chunk 0, and each chunk's stored values are then copied raw (no decoding,
+        so NaN fill values and flag dtypes pass unchanged) into their ``obs`` slice. The result
+        is the file :func:`write_netcdf` would write for the concatenated dataset (same values,
+        attributes and encoding: zlib level 4 on float arrays whether or not the chunks were
+        compressed, netCDF's default chunking for the full length).
+
+        Chunks must be contiguous from 0 (exactly ``n_chunks`` when given), with the same
+        variables, beams and global attributes; ValueError (naming the chunk) otherwise.
+        """
+        import netCDF4
+
+        n = self._check_complete(n_chunks)
+        files = [self.chunk_path(i) for i in range(n)]
+        # Pass 1 (metadata only): consistency and the total obs length.
+        with netCDF4.Dataset(files[0]) as ref:
+            ref_vars = {k: (v.dtype, v.dimensions) for k, v in ref.variables.items()}
+            ref_attrs = {k: ref.getncattr(k) for k in ref.ncattrs()}
+            ref_beam = ref["beam"][:] if "beam" in ref.variables else None
+        sizes = []
+        for i, f in enumerate(files):
+            with netCDF4.Dataset(f) as src:
+                if OBS_DIM not in src.dimensions:
+                    raise ValueError(f"chunk {i} ({f}): no {OBS_DIM!r} dimension")
+                sizes.append(len(src.dimensions[OBS_DIM]))
+                if i == 0:
+                    continue
+                got = {k: (v.dtype, v.dimensions) for k, v in src.variables.items()}
+                if got != ref_vars:
+                    raise ValueError(f"chunk {i} ({f}): variables differ from chunk 0")
+                if ref_beam is not None and not np.array_equal(src["beam"][:], ref_beam):
+                    raise ValueError(f"chunk {i}: beams differ from chunk 0")
+                attrs = {k: src.getncattr(k) for k in src.ncattrs()}
+                diff = sorted(k for k in set(attrs) | set(ref_attrs)
+                              if k not in attrs or k not in ref_attrs
+                              or not np.array_equal(attrs[k], ref_attrs[k]))
+                if diff:
+                    raise ValueError(f"chunk {i} ({f}): global attributes {diff} differ from "
+                                     "chunk 0")
+
+        def write(tmp):
+            with netCDF4.Dataset(files[0]) as ref, \
+                    netCDF4.Dataset(tmp, "w", format="NETCDF4") as dst:
+                for name, dim in ref.dimensions.items():
+                    dst.createDimension(name, sum(sizes) if name == OBS_DIM else len(dim))
+                for name, v in ref.variables.items():
+                    fill = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else None
+                    size = int(np.prod([len(dst.dimensions[d]) for d in v.dimensions]))
+                    # as write_netcdf (xarray passes shuffle=True, used with zlib only)
+                    out = dst.createVariable(
+                        name, v.datatype, v.dimensions, fill_value=fill,
+                        zlib=_compressed(v.dtype, v.ndim, size), complevel=4, shuffle=True)
+                    out.setncatts({k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"})
+                    out.set_auto_maskandscale(False)
+                    if OBS_DIM not in v.dimensions:  # beam, crs: the same in every chunk
+                        v.set_auto_maskandscale(False)
+                        out[...] = v[...]
+                dst.setncatts({k: ref.getncattr(k) for k in ref.ncattrs()})
+                start = 0
+                for f, m in zip(files, sizes):
+                    with netCDF4.Dataset(f) as src:
+                        for name, v in src.variables.items():
+                            if OBS_DIM not in v.dimensions:
+                                continue
+                            v.set_auto_maskandscale(False)
+                            index = tuple(slice(start, start + m) if d == OBS_DIM
+                                          else slice(None) for d in v.dimensions)
+                            dst[name][index] = v[...]
+                    start += m
+
+        return _atomic_write(path, write, overwrite=overwrite)
+
+    def merge(self, path, *, overwrite: bool = False, n_chunks: int | None = None) -> xr.Dataset:
+        """Concatenate chunks 0..n-1 along ``obs`` into ``path`` (atomic, streamed by
+        :meth:`merge_to_file`) and return the merged dataset read back into memory.
+
+        Chunks must be contiguous from 0 (and exactly ``n_chunks`` when given) with the same
+        beams; global attributes come from chunk 0 (and must agree in every chunk).
+        """
+        return read_netcdf(self.merge_to_file(path, overwrite=overwrite, n_chunks=n_chunks))

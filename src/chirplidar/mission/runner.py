@@ -1,18 +1,65 @@
 """``chirplidar run``: a mission over its scene, chunk by chunk, into a CF trajectory NetCDF file.
 
 mission.toml -> instrument + [scene] + [platform] + [attitude] + [beams] + [survey]
-  plan (path, beams, shot clock) -> per chunk: rays and footprint sub-rays on the terrain
-  -> returns through the tier (link | rf) -> per-shot variables -> results.build_dataset
-  -> atomic NetCDF write.
+  plan (path, beams, shot clock) -> per chunk (:func:`run_chunk`): rays and footprint sub-rays
+  on the terrain -> returns through the tier (link | baseband | rf) -> per-shot variables ->
+  results.build_dataset -> one atomic chunk file -> streamed merge into the results file.
 
 The scene's ``effects`` list is the run's ``effects.enabled`` (DESIGN.md: a scene enables
 effects); their parameters come from the instrument's ``[effects.*]`` sections.
+
+Chunks, resume and workers
+--------------------------
+Every chunk (``survey.chunk_shots`` shots) is computed by :func:`run_chunk`, a module-level
+function of small, picklable arguments (a :class:`ChunkJob` and the chunk index): it prepares the
+mission once per process (a small cache keyed by the job), computes geometry, measurement and
+the per-shot variables and writes ``chunk_NNNNN.nc`` atomically into the chunk directory beside
+the output (``<out>.chunks/``, e.g. ``outputs/greenland_uav.nc.chunks/``). A chunk's result
+depends only on (configuration, scene, plan, chunk index) -- its random streams are child
+``index`` of ``SeedSequence(seed)`` -- so chunks may run in any order, in any process, and give
+the same file as a serial run.
+
+The chunk directory also holds ``manifest.json`` (written atomically before any chunk): mission
+file, resolved configuration and its SHA-256, seed, tier, scene file and the SHA-256 of its
+text, shot and chunk counts, software version and the ``date_created`` of the run, so that a
+resumed run (``resume=True``) writes the same global attributes as an uninterrupted one. A run
+killed at any moment loses no finished chunk; ``--resume`` skips them, removes temp files of
+killed writes and refuses a manifest that does not match the current run.
+
+When every chunk exists they are merged into the results file by
+:meth:`results.ChunkWriter.merge_to_file` (atomic, chunk slice by chunk slice: memory stays
+bounded by one chunk whatever the mission length), the summary is computed chunk by chunk as
+well, and the chunk directory is removed.
+
+``workers=N`` (N > 1) runs the chunks on a ``dask.distributed.LocalCluster(n_workers=N,
+threads_per_worker=1, processes=True)``; ``scheduler=ADDRESS`` on an existing cluster (the
+mission, scene, cache and output paths must then be visible to the workers under the same
+absolute paths). On Linux the local cluster's workers are forked after the mission is prepared
+(they inherit it); elsewhere, and on an existing cluster, each worker process prepares it once.
+Without either option, chunks run serially in this process (no Dask cluster or client).
+
+Test hook: the environment variable ``CHIRPLIDAR_TEST_CHUNK_DELAY_S`` (seconds, default 0) makes
+a serial run sleep after each chunk file is written, so that tests can kill a run between
+chunks reliably. It changes no result.
 """
 
 from __future__ import annotations
 
+import contextlib
+import datetime as _dt
+import functools
+import hashlib
+import json
+import math
+import os
+import shutil
+import sys
+import threading
 import time
-from dataclasses import dataclass
+import uuid
+import warnings
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,18 +67,36 @@ import numpy as np
 from .. import __version__
 from ..config.loader import ConfigError, config_flat, config_with, load_mission
 from . import measure
-from .results import build_dataset, write_netcdf
-from .survey import chunk_geometry, chunk_seeds, check_crosses_scene, plan_survey
+from .results import SCHEMA, ChunkWriter, build_dataset, read_netcdf, write_bytes_atomic
+from .survey import check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 TIERS = ("link", "baseband", "rf")
 NO_SURFACE_CODE = -1
+MANIFEST_NAME = "manifest.json"
+MANIFEST_FORMAT = "chirplidar-run-chunks/1"
+CHUNK_DELAY_ENV = "CHIRPLIDAR_TEST_CHUNK_DELAY_S"
+# Manifest keys that identify a run: a resumed run must match them all.
+_IDENTITY = ("format", "mission_file", "configuration_sha256", "seed", "tier", "scene_file",
+             "scene_sha256", "n_shots", "n_beams", "n_chunks", "chunk_shots", "software_version")
 
 
 @dataclass(frozen=True)
 class RunResult:
+    """Output path, summary and timings of a run. ``dataset`` reads the results file into memory
+    on first access (the run itself never holds the whole mission in memory)."""
+
     path: Path
-    dataset: object
     summary: dict
+    timings: dict = field(default_factory=dict)
+
+    @functools.cached_property
+    def dataset(self):
+        return read_netcdf(self.path)
 
 
 def _config_toml(config) -> str:
@@ -42,8 +107,18 @@ def _config_toml(config) -> str:
     return tomli_w.dumps(_unflatten(config_flat(config)))
 
 
+def _sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
 def default_output(mission_path) -> Path:
     return Path("outputs") / (Path(mission_path).stem + ".nc")
+
+
+def chunk_dir_for(out) -> Path:
+    """The chunk directory of a run writing ``out``: ``<out>.chunks`` beside it."""
+    out = Path(out)
+    return out.with_name(out.name + ".chunks")
 
 
 def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None):
@@ -89,6 +164,19 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
     return config, scene, plan
 
 
+def _measure(config, scene, geom, seq, progress=None) -> dict:
+    """The measurement of one chunk through the run's tier (the one place that dispatches on
+    ``survey.tier``). ``progress(n)`` is called with the number of finished shot-beams."""
+    if config.survey.tier == "rf":
+        return measure.measure_rf(config, scene, geom, seq, progress=progress)
+    if config.survey.tier == "baseband":
+        return measure.measure_baseband(config, scene, geom, seq, progress=progress)
+    meas = measure.measure_link(config, scene, geom, seq)
+    if progress is not None:
+        progress(int(geom.range_true_m.size))
+    return meas
+
+
 def _per_shot(geom, meas) -> dict:
     """Schema variables (n, b) of one chunk (transposed to (b, n) when assembled)."""
     n, b = geom.range_true_m.shape
@@ -123,7 +211,264 @@ def _per_shot(geom, meas) -> dict:
     return out
 
 
+def results_dataset(per_shot: dict, config, scene, mission_label: str, date_created: str):
+    """The results dataset (schema, CF metadata, global attributes) of ``per_shot`` arrays of
+    shape (n_beams, n_shots): a chunk of a run, or a whole run assembled in memory."""
+    sv = config.survey
+    materials = {NO_SURFACE_CODE: "no_surface",
+                 **{c: name for c, name in enumerate(scene.terrain.material_names)}}
+    n_beams = next(iter(per_shot.values())).shape[0]
+    ds = build_dataset({**per_shot, "beam": np.arange(n_beams)}, epsg=scene.epsg,
+                       epoch_iso=sv.epoch_utc, config_toml=_config_toml(config),
+                       seed=config.seed, software_version=__version__, materials=materials,
+                       title=f"chirplidar survey: {Path(mission_label).stem} over {scene.name}",
+                       date_created=date_created)
+    ds.attrs.update({
+        "tier": sv.tier, "mission_file": str(Path(mission_label)),
+        "scene_file": str(scene.path), "scene_configuration": scene.text,
+        "platform": config.platform.kind, "beam_pattern": config.beams.pattern,
+    })
+    return ds
+
+
+# ---------------------------------------------------------------------------- one chunk
+@dataclass(frozen=True)
+class ChunkJob:
+    """What a process needs to compute a chunk of a run: small and picklable (paths, not data).
+
+    ``mission_path``, ``cache_dir`` and ``chunk_dir`` are absolute; ``mission_label`` is the
+    mission path as the user gave it (messages and the ``mission_file`` attribute). The two
+    hashes pin the resolved configuration and the scene text: a process that prepares the
+    mission itself checks that it got the same run.
+    """
+
+    mission_path: str
+    mission_label: str
+    overrides: tuple
+    tier: str | None
+    seed: int | None
+    cache_dir: str | None
+    chunk_dir: str
+    date_created: str
+    configuration_sha256: str
+    scene_sha256: str
+
+
+_PREPARED: OrderedDict = OrderedDict()   # per process: job key -> (config, scene, plan)
+_PREPARED_MAX = 2
+_PREPARED_LOCK = threading.RLock()        # workers with several threads share the cache
+
+
+def _job_key(job: ChunkJob) -> tuple:
+    return (job.mission_path, tuple(job.overrides), job.tier, job.seed, job.cache_dir,
+            job.configuration_sha256, job.scene_sha256)
+
+
+def _remember(job: ChunkJob, prepared: tuple) -> None:
+    key = _job_key(job)
+    with _PREPARED_LOCK:
+        _PREPARED[key] = prepared
+        _PREPARED.move_to_end(key)
+        while len(_PREPARED) > _PREPARED_MAX:
+            _PREPARED.popitem(last=False)
+
+
+def _prepared(job: ChunkJob) -> tuple:
+    """(config, scene, plan) of ``job``, prepared once per process (scene load, ray-casting
+    structures) and kept in a small cache; ConfigError if the files changed since the run
+    started (their hashes differ from the job's)."""
+    key = _job_key(job)
+    with _PREPARED_LOCK:   # one preparation per process, also with several worker threads
+        hit = _PREPARED.get(key)
+        if hit is not None:
+            _PREPARED.move_to_end(key)
+            return hit
+        config, scene, plan = prepare(job.mission_path, overrides=list(job.overrides),
+                                      tier=job.tier, seed=job.seed, cache_dir=job.cache_dir)
+        changed = [name for name, now, then in (
+            ("the resolved configuration", _sha256(_config_toml(config)),
+             job.configuration_sha256),
+            (f"the scene file {scene.path}", _sha256(scene.text), job.scene_sha256))
+            if now != then]
+        if changed:
+            raise ConfigError(f"{job.mission_label}: {' and '.join(changed)} changed on disk "
+                              f"since the run started (chunks in {job.chunk_dir}); rerun it")
+        _remember(job, (config, scene, plan))
+        return config, scene, plan
+
+
+def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
+    """Compute chunk ``index`` of ``job`` and write it atomically as ``chunk_NNNNN.nc`` in
+    ``job.chunk_dir``; returns its path. Pure in its arguments (a rerun rewrites the same file),
+    so any process may run it (Dask workers included)."""
+    config, scene, plan = _prepared(job)
+    if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)) \
+            or not 0 <= int(index) < plan.n_chunks:
+        raise ValueError(f"index must be a chunk index in 0..{plan.n_chunks - 1}, got {index!r}")
+    index = int(index)
+    seq = chunk_seeds(config.seed, plan.n_chunks)[index]
+    t = plan.chunk_times(index)
+    try:
+        geom = chunk_geometry(plan, scene, config, t, seq, config.survey.subrays_per_beam)
+    except ValueError as exc:
+        raise ConfigError(f"{job.mission_label}: [platform]: {exc}") from None
+    meas = _measure(config, scene, geom, seq, progress)
+    per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(geom, meas).items()}
+    ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created)
+    # uncompressed: a temporary file, the merge compresses the results file. The directory is
+    # not created here: a straggler of a run that is over cannot leave a manifest-less chunk.
+    return ChunkWriter(job.chunk_dir, create=False).write(index, ds, overwrite=True,
+                                                          compress=False)
+
+
+def _dask_run_chunk(job: ChunkJob, index: int) -> str:
+    """:func:`run_chunk` in a Dask worker, the path back as a string.
+
+    No thread limit is set here: a chunk's kernels are single-threaded numpy, scipy FFTs (one
+    worker thread by default) and embree queries (a serial run of the demo uses one core), and
+    spawned Dask workers start with OMP/MKL/OPENBLAS_NUM_THREADS=1 anyway.
+
+    xarray, asked to write a file inside a Dask worker, would guard every netCDF call with a
+    cluster-wide lock (one round trip to the scheduler each: hundreds per chunk file, measured
+    ~25 % of a chunk's time on the demo). Each chunk is its own file, so chunks run under
+    the synchronous scheduler: xarray then takes a lock local to this process.
+    """
+    with _synchronous_dask():
+        return str(run_chunk(job, index))
+
+
+_SYNC_LOCK = threading.Lock()
+_SYNC_STATE: dict = {"users": 0, "config": None}
+
+
+@contextlib.contextmanager
+def _synchronous_dask():
+    """``dask.config.set(scheduler="synchronous")`` while any chunk of this process runs.
+
+    dask's configuration is global to the process, so with several worker threads a plain
+    ``with dask.config.set(...)`` per task could restore the setting out of order; the first
+    chunk in sets it and the last one out restores the previous configuration."""
+    import dask
+
+    with _SYNC_LOCK:
+        if _SYNC_STATE["users"] == 0:
+            _SYNC_STATE["config"] = dask.config.set(scheduler="synchronous")
+        _SYNC_STATE["users"] += 1
+    try:
+        yield
+    finally:
+        with _SYNC_LOCK:
+            _SYNC_STATE["users"] -= 1
+            if _SYNC_STATE["users"] == 0:
+                _SYNC_STATE["config"].__exit__(None, None, None)
+                _SYNC_STATE["config"] = None
+
+
+# ---------------------------------------------------------------------------- manifest
+def _default_date_created() -> str:
+    """Now (UTC, ISO 8601, seconds), or ``$SOURCE_DATE_EPOCH`` when set (reproducible files)."""
+    env = os.environ.get("SOURCE_DATE_EPOCH")
+    if env is not None and env.strip():
+        try:
+            t = int(env)
+        except ValueError:
+            raise ConfigError(f"SOURCE_DATE_EPOCH={env!r}: must be an integer number of "
+                              "seconds since 1970-01-01 UTC") from None
+    else:
+        t = int(time.time())
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat().replace("+00:00", "Z")
+
+
+def _manifest(mission_path: Path, config, scene, plan, config_toml: str) -> dict:
+    return {
+        "format": MANIFEST_FORMAT,
+        "mission_file": str(mission_path.resolve()),
+        "configuration_sha256": _sha256(config_toml),
+        "seed": int(config.seed),
+        "tier": config.survey.tier,
+        "scene_file": str(Path(scene.path).resolve()),
+        "scene_sha256": _sha256(scene.text),
+        "n_shots": plan.n_shots,
+        "n_beams": plan.beams.n_beams,
+        "n_chunks": plan.n_chunks,
+        "chunk_shots": plan.chunk_shots,
+        "software_version": __version__,
+        "configuration": config_toml,
+    }
+
+
+def _flat_toml(text: str) -> dict:
+    out = {}
+
+    def walk(node, prefix):
+        for k, v in node.items():
+            if isinstance(v, dict):
+                walk(v, f"{prefix}{k}.")
+            else:
+                out[f"{prefix}{k}"] = v
+    try:
+        walk(tomllib.loads(text), "")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return {}
+    return out
+
+
+def _manifest_differences(old: dict, new: dict) -> list[str]:
+    diffs = []
+    for key in _IDENTITY:
+        if old.get(key) == new.get(key):
+            continue
+        if key == "configuration_sha256":
+            a, b = _flat_toml(str(old.get("configuration", ""))), _flat_toml(new["configuration"])
+            keys = sorted(k for k in set(a) | set(b)
+                          if a.get(k) != b.get(k) and k not in ("seed", "survey.tier"))
+            if keys:
+                shown = ", ".join(f"{k} = {a.get(k, '(unset)')!r} there, "
+                                  f"{b.get(k, '(unset)')!r} now" for k in keys[:5])
+                more = f" and {len(keys) - 5} more" if len(keys) > 5 else ""
+                diffs.append(f"configuration: {shown}{more}")
+            elif old.get("seed") == new.get("seed") and old.get("tier") == new.get("tier"):
+                diffs.append("configuration: the resolved configuration differs")
+            continue
+        if key == "scene_sha256":
+            diffs.append("scene: the scene file's text differs")
+            continue
+        diffs.append(f"{key}: {old.get(key)!r} there, {new.get(key)!r} now")
+    return diffs
+
+
+def _read_manifest(chunk_dir: Path) -> dict | None:
+    path = chunk_dir / MANIFEST_NAME
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: unreadable run manifest ({exc}); pass --overwrite to "
+                          "discard the chunks in that directory") from None
+    if not isinstance(data, dict) or not isinstance(data.get("date_created"), str):
+        raise ConfigError(f"{path}: not a chirplidar run manifest; pass --overwrite to discard "
+                          "the chunks in that directory")
+    return data
+
+
+def _write_manifest(chunk_dir: Path, manifest: dict) -> None:
+    text = json.dumps(manifest, indent=1, sort_keys=True) + "\n"
+    write_bytes_atomic(chunk_dir / MANIFEST_NAME, text.encode("utf-8"), overwrite=True)
+
+
+def _remove_temporaries(chunk_dir: Path, out: Path) -> None:
+    """Temp files of writes killed mid-way: chunks, the manifest and the results file."""
+    ChunkWriter(chunk_dir).remove_temporaries()
+    for pattern, where in ((f".{MANIFEST_NAME}.*.tmp", chunk_dir), (f".{out.name}.*.tmp",
+                                                                      out.parent)):
+        for p in where.glob(pattern):
+            p.unlink(missing_ok=True)
+
+
+# ---------------------------------------------------------------------------- summary
 def summarise(ds, path, elapsed_s: float) -> dict:
+    """Summary of a results dataset in memory (the reference for :func:`_summary_of_chunks`)."""
     det = ds["detected"].values
     err = ds["range_error"].values[det == 1]
     snr = ds["snr_db"].values[det == 1]
@@ -139,6 +484,133 @@ def summarise(ds, path, elapsed_s: float) -> dict:
         "range_error_rms_m": float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan"),
         "range_error_p95_abs_m": float(np.percentile(np.abs(err), 95)) if err.size else float("nan"),
         "elapsed_s": elapsed_s,
+    }
+
+
+_SIGN = np.uint64(1 << 63)
+
+
+def _sortable_keys(x: np.ndarray) -> np.ndarray:
+    """uint64 keys in the order of the (finite) float64 values ``x``."""
+    b = np.ascontiguousarray(x, dtype=np.float64).view(np.uint64)
+    return np.where(b & _SIGN, ~b, b | _SIGN)
+
+
+def _key_value(key: int) -> float:
+    k = np.uint64(key)
+    b = k ^ _SIGN if k & _SIGN else ~k
+    return float(np.array([b], dtype=np.uint64).view(np.float64)[0])
+
+
+def _order_statistics(blocks, ranks: list[list[int]], first_pass=None) -> list[list[float]]:
+    """Exact order statistics of several streams, with memory bounded by one block.
+
+    ``blocks()`` yields, per block, a tuple of 1-D float64 arrays (one per stream, finite
+    values) and is re-iterated; ``ranks[s]`` are 0-based ranks into the sorted union of stream
+    ``s``. A 4-pass radix select on 16-bit digits of order-preserving uint64 keys (2^16 counters
+    per rank). ``first_pass(block)``, if given, is also called on every block of the first pass.
+    """
+    prefix = [[0] * len(r) for r in ranks]
+    left = [list(r) for r in ranks]
+    for shift in (48, 32, 16, 0):
+        hist = [[np.zeros(1 << 16, dtype=np.int64) for _ in r] for r in ranks]
+        for block in blocks():
+            if shift == 48 and first_pass is not None:
+                first_pass(block)
+            for s, x in enumerate(block):
+                if not ranks[s]:
+                    continue
+                keys = _sortable_keys(x)
+                for j in range(len(ranks[s])):
+                    sel = keys if shift == 48 else keys[
+                        (keys >> np.uint64(shift + 16)) == np.uint64(prefix[s][j] >> (shift + 16))]
+                    digit = ((sel >> np.uint64(shift)) & np.uint64(0xFFFF)).astype(np.int64)
+                    hist[s][j] += np.bincount(digit, minlength=1 << 16)
+        for s in range(len(ranks)):
+            for j in range(len(ranks[s])):
+                c = np.cumsum(hist[s][j])
+                d = int(np.searchsorted(c, left[s][j], side="right"))
+                left[s][j] -= int(c[d - 1]) if d else 0
+                prefix[s][j] |= d << shift
+    return [[_key_value(p) for p in ps] for ps in prefix]
+
+
+def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: int,
+                       elapsed_s: float, budget_bytes: int) -> dict:
+    """:func:`summarise` of the run whose chunk files are ``files``, chunk by chunk, in memory
+    bounded by ``budget_bytes`` (the run passes one chunk's size).
+
+    The detected shots' SNR and range errors are kept while they fit in the budget; then the
+    statistics are numpy's own (as :func:`summarise`). Beyond it they are streamed: counts
+    and quantiles exactly as numpy's (``np.median``; ``np.percentile``, linear method) from
+    :func:`_order_statistics`, mean, standard deviation and RMS as sums over chunks (last-bit
+    differences from numpy's pairwise sums); five passes over the chunk files.
+    """
+    import netCDF4
+
+    def columns():
+        for f in files:
+            with netCDF4.Dataset(f) as src:
+                cols = []
+                for name in ("detected", "snr_db", "range_error"):
+                    v = src[name]
+                    v.set_auto_maskandscale(False)
+                    cols.append(np.asarray(v[...]).ravel())
+            det = cols[0]
+            ok = det == 1
+            yield det, cols[1][ok].astype(np.float64), cols[2][ok].astype(np.float64)
+
+    n_obs = 0
+    counts = np.zeros(3, dtype=np.int64)
+    s1 = s2 = 0.0
+    kept: list | None = []
+    for det, snr, err in columns():
+        n_obs += det.size // max(n_beams, 1)
+        counts += np.bincount(det.astype(np.int64), minlength=3)[:3]
+        s1 += float(np.sum(err))
+        s2 += float(np.sum(err * err))
+        if kept is not None:
+            kept.append((snr, err))
+            if 16 * int(counts[1]) > budget_bytes:
+                kept = None
+    n_det = int(counts[1])
+    nan = float("nan")
+    median = mean = std = rms = p95 = nan
+    if n_det and kept is not None:
+        snr = np.concatenate([k[0] for k in kept])
+        err = np.concatenate([k[1] for k in kept])
+        median, mean, std = np.median(snr), np.mean(err), np.std(err)
+        rms, p95 = np.sqrt(np.mean(err ** 2)), np.percentile(np.abs(err), 95)
+    elif n_det:
+        mean = s1 / n_det
+        rms = math.sqrt(s2 / n_det)
+        # np.median: the middle value or the mean of the middle two.
+        mid = [n_det // 2] if n_det % 2 else [n_det // 2 - 1, n_det // 2]
+        # np.percentile(.., 95), linear method: lerp between ranks floor(v) and floor(v) + 1.
+        v = (n_det - 1) * (95 / 100)
+        lo = min(math.floor(v), n_det - 1)
+        hi = min(lo + 1, n_det - 1)
+        dev = [0.0]
+
+        def add_dev(block):
+            dev[0] += float(np.sum((block[2] - mean) ** 2))
+
+        snr_q, err_q, _ = _order_statistics(
+            lambda: ((snr, np.abs(err), err) for _, snr, err in columns()), [mid, [lo, hi], []],
+            add_dev)
+        std = math.sqrt(dev[0] / n_det)
+        median = snr_q[0] if len(mid) == 1 else (snr_q[0] + snr_q[1]) / 2
+        a, b = err_q
+        g = 0.0 if v >= n_det - 1 else v - lo
+        diff = b - a
+        p95 = b - diff * (1 - g) if g >= 0.5 else a + diff * g
+    return {
+        "output": str(path), "tier": tier, "seed": int(seed), "beams": int(n_beams),
+        "shots": int(n_obs), "returns": int(n_obs * n_beams), "detected": n_det,
+        "below_threshold": int(counts[0]), "no_surface": int(counts[2]),
+        "median_snr_db": float(median), "range_error_mean_m": float(mean),
+        "range_error_std_m": float(std), "range_error_rms_m": float(rms),
+        "range_error_p95_abs_m": float(p95), "elapsed_s": elapsed_s,
     }
 
 
@@ -158,66 +630,224 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
+# ---------------------------------------------------------------------------- executing
+def _chunk_delay_s() -> float:
+    raw = os.environ.get(CHUNK_DELAY_ENV, "").strip()
+    if not raw:
+        return 0.0
+    try:
+        delay = float(raw)
+    except ValueError:
+        delay = -1.0
+    if not (math.isfinite(delay) and delay >= 0):
+        raise ConfigError(f"{CHUNK_DELAY_ENV}={raw!r}: must be a number of seconds >= 0")
+    return delay
+
+
+def _run_serial(job: ChunkJob, todo: list[int], bar) -> None:
+    delay = _chunk_delay_s()
+    for i in todo:
+        run_chunk(job, i, progress=bar.update if bar else None)
+        if delay:
+            time.sleep(delay)
+
+
+def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
+              timings: dict) -> None:
+    """One Dask task per missing chunk; the progress bar follows completed futures. On an error
+    or interrupt the other tasks are cancelled and the cluster closed; finished chunks stay."""
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError as exc:
+        raise ConfigError(f"--workers/--scheduler need dask.distributed ({exc}); "
+                          "pip install 'dask[distributed]'") from None
+    t0 = time.perf_counter()
+    cluster = client = None
+    futures = []
+    try:
+        if scheduler is not None:
+            try:
+                client = Client(scheduler)   # dask's distributed.comm.timeouts.connect
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        else:
+            import dask
+
+            # Linux: fork the worker processes from this one, after prepare(): they inherit the
+            # imported modules and the prepared mission (scene, ray-casting structures) in the
+            # cache of _prepared, instead of paying both again per worker (seconds each).
+            method = "fork" if sys.platform.startswith("linux") else \
+                dask.config.get("distributed.worker.multiprocessing-method")
+            # (Python >= 3.12 warns about fork in a process with threads: the cluster's own
+            # event-loop thread is one; the workers start single-threaded from the forking one.)
+            with dask.config.set({"distributed.worker.multiprocessing-method": method}), \
+                    warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=r".*use of fork\(\) may lead to",
+                                        category=DeprecationWarning)
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                       processes=True, dashboard_address=None)
+            client = Client(cluster)
+        timings["cluster_start_s"] = time.perf_counter() - t0
+        token = uuid.uuid4().hex[:12]
+        shots = {}
+        for i in todo:
+            fut = client.submit(_dask_run_chunk, job, i, key=f"chirplidar-chunk-{token}-{i:05d}",
+                                pure=False, retries=0)
+            shots[fut.key] = plan.chunk_times(i).size * plan.beams.n_beams
+            futures.append(fut)
+        for fut in as_completed(futures):
+            fut.result()   # re-raises a worker's error (ConfigError, ValueError, ...) as is
+            if bar:
+                bar.update(shots[fut.key])
+    except BaseException:
+        if client is not None and futures:
+            try:
+                client.cancel(futures)
+            except Exception:  # noqa: BLE001, S110 - closing anyway; the original error matters
+                pass
+        raise
+    finally:
+        t1 = time.perf_counter()
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        timings["cluster_close_s"] = time.perf_counter() - t1
+
+
+def _check_parallel_args(workers, scheduler) -> None:
+    if workers is not None and (isinstance(workers, (bool, np.bool_))
+                                or not isinstance(workers, (int, np.integer)) or workers < 1):
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if scheduler is not None:
+        if workers is not None:
+            raise ValueError("workers and scheduler are exclusive: give one of them")
+        if not isinstance(scheduler, str) or not scheduler.strip():
+            raise ValueError(f"scheduler must be an address such as tcp://host:8786, "
+                             f"got {scheduler!r}")
+
+
 def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
-                overwrite=False, progress=False, cache_dir=None, date_created=None) -> RunResult:
-    """Run a survey mission and write its results; returns the path, dataset and summary.
+                overwrite=False, progress=False, cache_dir=None, date_created=None,
+                workers=None, scheduler=None, resume=False) -> RunResult:
+    """Run a survey mission and write its results; returns the path, summary and timings.
 
     ``out`` defaults to ``outputs/<mission name>.nc``. An existing ``out`` raises
     FileExistsError before any work unless ``overwrite``; the file is written atomically, so an
-    interrupted run leaves any previous file intact.
+    interrupted run leaves any previous file intact. Chunks go to ``<out>.chunks/`` first (see
+    the module docstring): an existing chunk directory raises FileExistsError unless ``resume``
+    (finish that run: its finished chunks are kept, its manifest must match) or ``overwrite``
+    (discard it). ``workers`` > 1 runs the chunks on a local Dask cluster, ``scheduler`` on an
+    existing one; the results are the same as a serial run's. ``date_created`` (ISO 8601)
+    defaults to now, or ``$SOURCE_DATE_EPOCH``; a resumed run reuses the one of its manifest.
     """
     t0 = time.perf_counter()
+    _check_parallel_args(workers, scheduler)
     out = Path(out) if out is not None else default_output(mission_path)
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists: pass --overwrite to replace it (nothing was run)")
     if out.suffix != ".nc":
         raise ConfigError(f"--out {out}: the results file must end in .nc")
+    chunk_dir = chunk_dir_for(out)
+    if chunk_dir.exists() and not (resume or overwrite):
+        raise FileExistsError(
+            f"{chunk_dir} holds the chunks of an unfinished run: pass --resume to finish it or "
+            "--overwrite to discard it (nothing was run)")
     config, scene, plan = prepare(mission_path, overrides=overrides, tier=tier, seed=seed,
                                   cache_dir=cache_dir)
     sv = config.survey
     if plan.n_shots == 0:
         raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
                           f"{sv.prf_hz:g} Hz holds no shot")
-    seeds = chunk_seeds(config.seed, plan.n_chunks)
-    parts = []
+    if out.parent != Path(".") and not out.parent.is_dir():
+        if out == default_output(mission_path):
+            out.parent.mkdir(parents=True, exist_ok=True)
+        else:
+            raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+    timings = {"prepare_s": time.perf_counter() - t0}
+
+    config_toml = _config_toml(config)
+    manifest = _manifest(Path(mission_path), config, scene, plan, config_toml)
+    old = None
+    if chunk_dir.exists() and resume:
+        if not chunk_dir.is_dir():
+            raise ConfigError(f"{chunk_dir}: exists and is not a chunk directory")
+        old = _read_manifest(chunk_dir)
+        if old is None and ChunkWriter(chunk_dir).completed_chunks():
+            raise ConfigError(f"{chunk_dir}: chunk files without a {MANIFEST_NAME}: cannot tell "
+                              "which run they belong to; pass --overwrite to discard them")
+        if old is not None:
+            diffs = _manifest_differences(old, manifest)
+            if date_created is not None and date_created != old["date_created"]:
+                diffs.append(f"date_created: {old['date_created']!r} there, "
+                             f"{date_created!r} now")
+            if diffs:
+                raise ConfigError(f"{chunk_dir}: --resume: the chunks there belong to a "
+                                  f"different run ({'; '.join(diffs)}); rerun with the same "
+                                  "settings, or pass --overwrite to discard them")
+            date_created = old["date_created"]
+        _remove_temporaries(chunk_dir, out)
+    elif chunk_dir.exists():   # overwrite: discard the unfinished run
+        shutil.rmtree(chunk_dir)
+    if old is None:
+        if date_created is None:
+            date_created = _default_date_created()
+        chunk_dir.mkdir(exist_ok=True)
+        _write_manifest(chunk_dir, {**manifest, "date_created": date_created})
+
+    job = ChunkJob(
+        mission_path=str(Path(mission_path).resolve()), mission_label=str(mission_path),
+        overrides=tuple(str(o) for o in overrides), tier=tier,
+        seed=None if seed is None else int(seed),
+        cache_dir=None if cache_dir is None else str(Path(cache_dir).resolve()),
+        chunk_dir=str(chunk_dir.resolve()), date_created=date_created,
+        configuration_sha256=manifest["configuration_sha256"],
+        scene_sha256=manifest["scene_sha256"])
+    _remember(job, (config, scene, plan))
+    try:
+        return _execute(job, config, plan, out, chunk_dir, overwrite=overwrite,
+                        progress=progress, workers=workers, scheduler=scheduler,
+                        timings=timings, t0=t0)
+    finally:
+        _PREPARED.pop(_job_key(job), None)   # this process needs it no more (workers keep theirs)
+
+
+def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwrite: bool,
+             progress: bool, workers, scheduler, timings: dict, t0: float) -> RunResult:
+    """The missing chunks (serial or Dask), then the merge, the summary and the removal of the
+    chunk directory."""
+    sv = config.survey
+    writer = ChunkWriter(chunk_dir)
+    done = set(writer.completed_chunks())
+    todo = [i for i in range(plan.n_chunks) if i not in done]
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=plan.n_shots * plan.beams.n_beams, unit="shot", desc=f"run {sv.tier}",
-                   leave=False)
+        n_beams = plan.beams.n_beams
+        bar = tqdm(total=plan.n_shots * n_beams, unit="shot", desc=f"run {sv.tier}",
+                   leave=False, initial=sum(plan.chunk_times(i).size for i in done) * n_beams)
+    t1 = time.perf_counter()
     try:
-        for i in range(plan.n_chunks):  # chunks bound the memory; shots inside are vectorised
-            t = plan.chunk_times(i)
-            try:
-                geom = chunk_geometry(plan, scene, config, t, seeds[i], sv.subrays_per_beam)
-            except ValueError as exc:
-                raise ConfigError(f"{mission_path}: [platform]: {exc}") from None
-            if sv.tier in ("rf", "baseband"):
-                measure_tier = measure.measure_rf if sv.tier == "rf" else measure.measure_baseband
-                meas = measure_tier(config, scene, geom, seeds[i],
-                                    progress=bar.update if bar else None)
-            else:
-                meas = measure.measure_link(config, scene, geom, seeds[i])
-                if bar:
-                    bar.update(t.size * plan.beams.n_beams)
-            parts.append(_per_shot(geom, meas))
+        if scheduler is None and (workers is None or workers == 1):
+            _run_serial(job, todo, bar)
+        else:
+            _run_dask(job, todo, plan, workers, scheduler, bar, timings)
+    except BaseException:
+        if not writer.completed_chunks():   # nothing to resume: do not block the next run
+            shutil.rmtree(chunk_dir, ignore_errors=True)
+        raise
     finally:
         if bar:
             bar.close()
-    per_shot = {k: np.concatenate([p[k] for p in parts], axis=0).T for k in parts[0]}
-    materials = {NO_SURFACE_CODE: "no_surface",
-                 **{c: name for c, name in enumerate(scene.terrain.material_names)}}
-    per_shot["beam"] = np.arange(plan.beams.n_beams)
-    ds = build_dataset(per_shot, epsg=scene.epsg, epoch_iso=sv.epoch_utc,
-                       config_toml=_config_toml(config), seed=config.seed,
-                       software_version=__version__, materials=materials,
-                       title=f"chirplidar survey: {Path(mission_path).stem} over {scene.name}",
-                       date_created=date_created)
-    ds.attrs.update({
-        "tier": sv.tier, "mission_file": str(Path(mission_path)),
-        "scene_file": str(scene.path), "scene_configuration": scene.text,
-        "platform": config.platform.kind, "beam_pattern": config.beams.pattern,
-    })
-    path = write_netcdf(ds, out, overwrite=overwrite)
-    return RunResult(path, ds, summarise(ds, path, time.perf_counter() - t0))
+    timings["chunks_s"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    path = writer.merge_to_file(out, overwrite=overwrite, n_chunks=plan.n_chunks)
+    files = [writer.chunk_path(i) for i in range(plan.n_chunks)]
+    one_chunk = plan.chunk_shots * plan.beams.n_beams * 8 * len(SCHEMA)   # bytes, float64
+    summary = _summary_of_chunks(files, path, sv.tier, config.seed, plan.beams.n_beams, 0.0,
+                                 budget_bytes=one_chunk)
+    shutil.rmtree(chunk_dir, ignore_errors=True)
+    timings["merge_s"] = time.perf_counter() - t2
+    summary["elapsed_s"] = time.perf_counter() - t0
+    return RunResult(path, summary, timings)

@@ -1,0 +1,215 @@
+"""Accuracy-versus-time study (analysis.accuracy), its plot, the tiers timing and the screen knob.
+
+Fast settings only (a few shots, a few knobs); no assertion on measured times.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from chirplidar import load_mission
+from chirplidar.analysis.accuracy import (COLUMNS, HEX_COUNTS, accuracy_study, footprint_echoes,
+                                          markdown_table, pattn_for_snr, write_outputs)
+from chirplidar.bench import bench_tiers
+from chirplidar.cli import main
+from chirplidar.config import ConfigError, config_with
+
+from conftest import BENCH, CH5
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+NUMERIC = [c for c in COLUMNS if c not in ("study", "family", "tier", "setting", "knob", "value",
+                                            "reference", "flags")]
+# One SNR point, two processing knobs of the rf tier, the baseband and link tiers: ~1 s.
+TINY = dict(snr_db=(30.0,), shots=4, batch=2,
+            families=("peak_method", "zero_pad", "baseband_rate", "link"),
+            peak_methods=("parabolic",), zero_pad_factors=(2,), baseband_rates_hz=(None,))
+
+
+@pytest.fixture(scope="module")
+def tiny_rows():
+    return accuracy_study(CH5, **TINY)
+
+
+def test_study_rows_have_the_columns_and_finite_values(tiny_rows):
+    assert [r["setting"] for r in tiny_rows] == [
+        "rf ref (3 GHz, dtft, zp1)", "peak parabolic", "zero pad x2", "baseband (default rate)",
+        "link"]
+    for r in tiny_rows:
+        assert tuple(r) == COLUMNS
+        for c in NUMERIC:
+            assert isinstance(r[c], (int, float)) and math.isfinite(r[c]), (r["setting"], c)
+        assert r["shots"] == 4 and r["s_per_shot"] > 0 and r["range_rms_m"] > 0
+        assert abs(r["snr_target_db"] - 30.0) < 1e-9
+    assert {r["tier"] for r in tiny_rows} == {"rf", "baseband", "link"}
+
+
+def test_reference_row_has_zero_errors_and_others_are_relative_to_it(tiny_rows):
+    ref = tiny_rows[0]
+    assert ref["reference"] and sum(r["reference"] for r in tiny_rows) == 1
+    assert ref["snr_error_db"] == 0.0 and ref["range_rms_diff_m"] == 0.0
+    assert ref["snr_std_error_db"] == 0.0 and ref["cost_vs_reference"] == 1.0
+    for r in tiny_rows[1:]:
+        assert r["snr_error_db"] == pytest.approx(r["snr_mean_db"] - ref["snr_mean_db"])
+        assert r["range_rms_diff_m"] == pytest.approx(r["range_rms_m"] - ref["range_rms_m"])
+    # Zero padding only interpolates the same spectrum that the dtft peak already reads exactly:
+    # the same shots (same seeds, same noise) give the same SNR to a small fraction of a dB.
+    zp = next(r for r in tiny_rows if r["family"] == "zero_pad")
+    assert abs(zp["snr_error_db"]) < 0.05
+    # The SNR points are placed with the link tier: it reads the target.
+    link = next(r for r in tiny_rows if r["tier"] == "link")
+    assert link["snr_mean_db"] == pytest.approx(30.0, abs=0.01)
+
+
+def test_outputs_are_written(tiny_rows, tmp_path):
+    paths = write_outputs(tiny_rows, tmp_path / "out", header="# test")
+    assert set(paths) == {"csv", "md", "png"}
+    png = paths["png"]
+    assert png.name == "accuracy_vs_time.png" and png.read_bytes()[:8] == PNG_MAGIC
+    with paths["csv"].open() as fh:
+        got = list(csv.DictReader(fh))
+    assert tuple(got[0]) == COLUMNS and len(got) == len(tiny_rows)
+    assert float(got[0]["snr_error_db"]) == 0.0
+    md = paths["md"].read_text()
+    assert md.startswith("# test") and md.count("\n| 30 dB |") == len(tiny_rows)
+    assert markdown_table(tiny_rows) in md
+
+
+def test_footprint_and_screen_studies_run_small(tmp_path):
+    rows = accuracy_study(CH5, snr_db=(30.0,), shots=2, batch=2, families=("sub_rays", "screen"),
+                          sub_rays=(1,), sub_rays_reference=3, screen_pixels=(16,),
+                          screen_reference=24, turbulence_shots=2)
+    studies = [(r["study"], r["tier"], r["value"], r["reference"]) for r in rows]
+    assert studies[0] == ("point target", "rf", "mission", True)   # the reference always runs
+    assert ("footprint", "rf", "3", True) in studies and ("footprint", "baseband", "1", False) in studies
+    assert ("turbulence", "rf", "24", True) in studies and ("turbulence", "link", "16", False) in studies
+    for r in rows:
+        assert math.isfinite(r["snr_mean_db"]) and math.isfinite(r["range_rms_m"])
+        if r["reference"]:
+            assert r["snr_error_db"] == 0.0
+    paths = write_outputs(rows, tmp_path)
+    assert paths["png"].read_bytes()[:8] == PNG_MAGIC
+
+
+def test_footprint_echoes_are_centred_gaussian_samples():
+    cfg = load_mission(CH5)
+    for k in (1, 3, 7, 19, 37):
+        off, w = footprint_echoes(cfg, k, 10.0)
+        assert off.shape == w.shape == (k,)
+        assert w.sum() == pytest.approx(1.0) and np.all(w > 0)
+        assert abs(np.sum(w * off)) < 1e-15                      # mean delay = the centre's
+    off0, _ = footprint_echoes(cfg, 19, 0.0)
+    assert np.all(off0 == 0.0)                                   # a flat footprint: one range
+    _, w7 = footprint_echoes(cfg, 7, 10.0)
+    assert 0.2 < w7[0] < 0.6                                     # the centre keeps a fair share
+    assert HEX_COUNTS[:4] == (1, 7, 19, 37)
+
+
+def test_pattn_for_snr_places_the_link_snr():
+    cfg = load_mission(CH5)
+    p = pattn_for_snr(cfg, 16.0)
+    assert 70 < p < 90
+    from chirplidar.tiers import simulate_link
+
+    snr = simulate_link(config_with(cfg, {"atm.Pattn": p}), np.random.default_rng(0))["SNR"][0]
+    assert snr == pytest.approx(16.0, abs=1e-2)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(snr_db=()), "snr_db"),
+    (dict(snr_db=(10.0, float("nan"))), "snr_db"),
+    (dict(snr_db=(10.0, 10.0)), "twice"),
+    (dict(shots=1), "shots"),
+    (dict(batch=0), "batch"),
+    (dict(families=("nonsense",)), "families"),
+    (dict(sample_rates_hz=(5e8,)), "chirp top"),
+    (dict(upsample_factors=(0,)), "upsample_factors"),
+    (dict(peak_methods=("cubic",)), "peak_methods"),
+    (dict(zero_pad_factors=(1.5,)), "zero_pad_factors"),
+    (dict(baseband_rates_hz=(-1.0,)), "baseband_rates_hz"),
+    (dict(sub_rays=(5,)), "hexagonal"),
+    (dict(sub_rays=(1, 37), sub_rays_reference=19), "sub_rays_reference"),
+    (dict(slope_deg=95.0), "slope_deg"),
+    (dict(screen_pixels=(8,)), "screen_pixels"),
+    (dict(screen_pixels=(64,), screen_reference=32), "screen_reference"),
+    (dict(turbulence_shots=1), "turbulence_shots"),
+])
+def test_bad_arguments_are_clear_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        accuracy_study(CH5, **kwargs)
+
+
+def test_non_homodyne_mission_is_refused():
+    with pytest.raises(ValueError, match="homodyne"):
+        accuracy_study(CH5, ["sys.rsel=PIN"], shots=2)
+
+
+def test_write_outputs_refuses_empty_or_foreign_rows(tmp_path):
+    with pytest.raises(ValueError, match="no rows"):
+        write_outputs([], tmp_path)
+    with pytest.raises(ValueError, match="columns"):
+        write_outputs([{"setting": "x"}], tmp_path)
+
+
+# ------------------------------------------------------------------------- screen_pixels knob
+
+TURB = ['atm.state=on', "atm.dst=100", "atm.Cn2=3e-13", "atm.Wr=1e9",
+        'effects.enabled=["coupling", "turbulence"]', "effects.coupling.obstruction_ratio=0.3",
+        "effects.coupling.focal_length_m=1.0", "effects.coupling.mode_field_radius_m=4.6e-6",
+        "effects.coupling.fiber_numerical_aperture=0.14", 'effects.coupling.target="specular"',
+        'effects.turbulence.fading="frozen_flow"', "effects.turbulence.outer_scale_m=20",
+        "effects.turbulence.transverse_speed_mps=10", "effects.turbulence.shot_interval_s=0.01"]
+
+
+def _fading(overrides):
+    from chirplidar.channel.effects import channel_returns
+
+    cfg = load_mission(CH5, TURB + overrides)
+    return channel_returns(cfg, 6, np.random.default_rng(5)).power_factor
+
+
+def test_screen_pixels_unset_keeps_the_rule_and_set_changes_the_screen():
+    default = _fading([])
+    assert np.array_equal(default, _fading(["effects.turbulence.screen_pixels=64"]))  # the rule: 64
+    coarse = _fading(["effects.turbulence.screen_pixels=16"])
+    assert coarse.shape == default.shape and np.all(coarse > 0)
+    assert not np.array_equal(coarse, default)
+
+
+def test_screen_pixels_bounds_are_clear_errors():
+    with pytest.raises(ConfigError, match="screen_pixels"):
+        load_mission(CH5, TURB + ["effects.turbulence.screen_pixels=8"])          # below 16
+    with pytest.raises(ValueError, match="coarser than r0"):
+        _fading(["atm.Cn2=3e-12", "effects.turbulence.screen_pixels=16"])        # D/r0 ~ 25
+
+
+# ------------------------------------------------------------------------------- tiers timing
+
+def test_bench_tiers_keys_and_consistency():
+    res = bench_tiers(BENCH, repeats=1, baseband_batch=4, link_batch=1000)
+    assert set(res) == {"rf_shot_s", "baseband_shot_s", "link_shot_s", "baseband_speedup",
+                        "link_shots_per_s"}
+    assert all(math.isfinite(v) and v > 0 for v in res.values())
+    assert res["baseband_speedup"] == pytest.approx(res["rf_shot_s"] / res["baseband_shot_s"])
+    assert res["link_shots_per_s"] == pytest.approx(1.0 / res["link_shot_s"])
+    with pytest.raises(ValueError, match="link_batch"):
+        bench_tiers(BENCH, repeats=1, link_batch=0)
+
+
+def test_cli_accuracy_rejects_bad_shots_and_lists_the_choices(capsys):
+    assert main(["bench", "--what", "accuracy", "--shots", "1"]) == 2
+    assert "--shots must be >= 2" in capsys.readouterr().err
+    assert main(["bench", "--what", "nonsense"]) == 2
+    err = capsys.readouterr().err
+    assert "accuracy" in err and "tiers" in err
+
+
+def test_cli_accuracy_bad_mission_override_is_an_error(tmp_path, capsys):
+    code = main(["bench", "--what", "accuracy", "--shots", "2", "--set", "sys.rsel=PIN",
+                 "--out", str(tmp_path), "--json"])
+    assert code == 2
+    assert "homodyne" in capsys.readouterr().err
+    assert not (tmp_path / "accuracy_vs_time.png").exists()

@@ -1,0 +1,341 @@
+"""Chunked survey runs: chunk files and streamed merge, Dask workers, kill and resume.
+
+Reference values: there are no physical numbers here. The reference for every comparison is
+the pre-chunking code path, kept below as ``_in_memory_run`` (the body of ``run_mission``
+before chunk files: all chunks in memory, concatenated, one ``build_dataset``, one
+``write_netcdf``), and the uninterrupted serial run of the same mission and seed
+(DESIGN.md: "Same seed, same output, serial or parallel").
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+import signal
+import subprocess
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+from types import SimpleNamespace
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+
+from chirplidar.cli import main
+from chirplidar.config.loader import ConfigError
+from chirplidar.mission import measure
+from chirplidar.mission.results import (
+    ChunkWriter,
+    build_dataset,
+    read_netcdf,
+    write_netcdf,
+)
+from chirplidar.mission.runner import (
+    CHUNK_DELAY_ENV,
+    MANIFEST_NAME,
+    _config_toml,
+    _per_shot,
+    chunk_dir_for,
+    prepare,
+    run_mission,
+    summarise,
+)
+from chirplidar.mission.survey import chunk_geometry, chunk_seeds
+
+ROOT = Path(__file__).resolve().parents[1]
+DATE = "2026-01-01T00:00:00Z"          # fixed date_created
+DATE_EPOCH = "1767225600"              # the same instant as SOURCE_DATE_EPOCH (CLI runs)
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """The Greenland UAV mission over a coarse (50 m) copy of its scene, 30 s of flight at
+    100 Hz = 3000 shots in 6 chunks of 500."""
+    tmp = tmp_path_factory.mktemp("scale")
+    text = (ROOT / "scenes" / "greenland_outlet.toml").read_text()
+    text = text.replace("resolution_m = 5.0", "resolution_m = 50.0", 1)
+    assert "resolution_m = 50.0" in text
+    (tmp / "scene.toml").write_text(text)
+    mission = tmp / "small_uav.toml"
+    mission.write_text(f'extends = "{ROOT / "missions" / "greenland_uav.toml"}"\n'
+                       '[scene]\nfile = "scene.toml"\n'
+                       '[survey]\nstop_s = 30.0\nchunk_shots = 500\n')
+    cache = tmp / "cache"
+    _, _, plan = prepare(mission, cache_dir=cache)
+    assert plan.n_chunks == 6 and plan.n_shots == 3000
+    serial = run_mission(mission, out=tmp / "serial.nc", cache_dir=cache, date_created=DATE)
+    return SimpleNamespace(tmp=tmp, mission=mission, cache=cache, serial=serial)
+
+
+def _in_memory_run(mission, out, cache):
+    """The code path before chunk files (reference)."""
+    from chirplidar import __version__
+    from chirplidar.mission.runner import NO_SURFACE_CODE
+
+    config, scene, plan = prepare(mission, cache_dir=cache)
+    sv = config.survey
+    seeds = chunk_seeds(config.seed, plan.n_chunks)
+    parts = []
+    for i in range(plan.n_chunks):
+        geom = chunk_geometry(plan, scene, config, plan.chunk_times(i), seeds[i],
+                              sv.subrays_per_beam)
+        parts.append(_per_shot(geom, measure.measure_link(config, scene, geom, seeds[i])))
+    per_shot = {k: np.concatenate([p[k] for p in parts], axis=0).T for k in parts[0]}
+    per_shot["beam"] = np.arange(plan.beams.n_beams)
+    materials = {NO_SURFACE_CODE: "no_surface",
+                 **{c: name for c, name in enumerate(scene.terrain.material_names)}}
+    ds = build_dataset(per_shot, epsg=scene.epsg, epoch_iso=sv.epoch_utc,
+                       config_toml=_config_toml(config), seed=config.seed,
+                       software_version=__version__, materials=materials,
+                       title=f"chirplidar survey: {Path(mission).stem} over {scene.name}",
+                       date_created=DATE)
+    ds.attrs.update({"tier": sv.tier, "mission_file": str(Path(mission)),
+                     "scene_file": str(scene.path), "scene_configuration": scene.text,
+                     "platform": config.platform.kind, "beam_pattern": config.beams.pattern})
+    write_netcdf(ds, out)
+    return ds
+
+
+def _header(path):
+    """Everything netCDF stores about a file except the data: dimensions, variables with
+    dtype, dimensions, filters, chunking and typed attributes, typed global attributes."""
+    with netCDF4.Dataset(path) as d:
+        out = [("dims", [(k, len(v)) for k, v in d.dimensions.items()]),
+               ("attrs", [(k, type(d.getncattr(k)).__name__, repr(d.getncattr(k)))
+                          for k in d.ncattrs()])]
+        for name, v in d.variables.items():
+            out.append((name, str(v.dtype), v.dimensions, v.filters(), v.chunking(),
+                        [(k, type(v.getncattr(k)).__name__, repr(v.getncattr(k)))
+                         for k in v.ncattrs()]))
+    return out
+
+
+def _identical_files(a, b):
+    da, db = read_netcdf(a), read_netcdf(b)
+    xr.testing.assert_identical(da, db)
+    assert _header(a) == _header(b)
+
+
+def test_chunked_run_equals_in_memory_path(small, tmp_path):
+    mission, cache, serial = small.mission, small.cache, small.serial
+    ref = _in_memory_run(mission, tmp_path / "ref.nc", cache)
+    xr.testing.assert_identical(serial.dataset, ref)
+    _identical_files(serial.path, tmp_path / "ref.nc")   # encoding and chunking included
+    assert not chunk_dir_for(serial.path).exists()        # removed after the merge
+    s, r = serial.summary, summarise(ref, serial.path, 0.0)
+    for key in ("shots", "beams", "returns", "detected", "below_threshold", "no_surface",
+                "median_snr_db", "range_error_p95_abs_m", "seed", "tier"):
+        assert s[key] == r[key], key                       # exact (order statistics)
+    for key in ("range_error_mean_m", "range_error_std_m", "range_error_rms_m"):
+        assert s[key] == pytest.approx(r[key], rel=1e-12)  # sums in another order
+
+
+def test_summary_streamed_beyond_its_memory_budget(small, tmp_path):
+    """Past its memory budget the summary is streamed over the chunk files (radix-select order
+    statistics): counts, median and 95th percentile still exactly numpy's."""
+    from chirplidar.mission.runner import _order_statistics, _summary_of_chunks
+
+    serial = small.serial
+    ds = serial.dataset
+    writer = ChunkWriter(tmp_path / "chunks")
+    files = [writer.write(i, ds.isel(obs=slice(a, a + 700)), compress=False)
+             for i, a in enumerate(range(0, ds.sizes["obs"], 700))]
+    ref = summarise(ds, "x.nc", 0.0)
+    for budget in (10**9, 0):   # in memory, streamed
+        got = _summary_of_chunks(files, "x.nc", "link", 2026, 1, 0.0, budget_bytes=budget)
+        assert {k: got[k] for k in ("shots", "detected", "median_snr_db",
+                                    "range_error_p95_abs_m")} == \
+            {k: ref[k] for k in ("shots", "detected", "median_snr_db", "range_error_p95_abs_m")}
+        for key in ("range_error_mean_m", "range_error_std_m", "range_error_rms_m"):
+            assert got[key] == pytest.approx(ref[key], rel=1e-12)
+    # order statistics of signed values with ties, over uneven blocks (reference: np.sort)
+    rng = np.random.default_rng(4)
+    blocks = [np.round(rng.normal(0, 3, n), 1) for n in (1, 500, 0, 77)]
+    blocks[1][:3] = [-0.0, 0.0, np.finfo(float).max]
+    ranks = [0, 1, 2, 300, 577]
+    (got,) = _order_statistics(lambda: ((b,) for b in blocks), [ranks])
+    assert got == np.sort(np.concatenate(blocks))[ranks].tolist()
+
+
+def test_merge_streams_chunk_slices(tmp_path):
+    """Chunk files merged slice by slice give write_netcdf's file of the concatenation, with
+    array allocations bounded by one chunk (tracemalloc sees numpy's buffers)."""
+    rng = np.random.default_rng(1)
+    n_chunks, m, beams = 10, 4000, 2
+    config = '[survey]\ntier = "link"\n'
+    kw = {"epsg": 3413, "epoch_iso": DATE, "config_toml": config, "seed": 3,
+          "software_version": "0", "materials": {0: "snow"}, "date_created": DATE}
+    full = {"delta_time": np.tile(np.arange(n_chunks * m) * 0.01, (beams, 1)),
+            "x": rng.normal(0, 1e3, (beams, n_chunks * m)) - 2e5,
+            "y": rng.normal(0, 1e3, (beams, n_chunks * m)) - 2.4e6,
+            "range_measured": np.where(rng.random((beams, n_chunks * m)) < 0.1, np.nan,
+                                       rng.normal(500, 1, (beams, n_chunks * m))),
+            "detected": rng.integers(0, 3, (beams, n_chunks * m)),
+            "surface_type": np.zeros((beams, n_chunks * m), dtype=int)}
+    writer = ChunkWriter(tmp_path / "chunks")
+    for i in range(n_chunks):
+        part = {k: v[:, i * m:(i + 1) * m] for k, v in full.items()}
+        writer.write(i, build_dataset(part, **kw), compress=i % 2 == 0)
+    whole = build_dataset(full, **kw)
+    write_netcdf(whole, tmp_path / "whole.nc")
+    chunk_bytes = sum(v.nbytes for v in build_dataset(
+        {k: v[:, :m] for k, v in full.items()}, **kw).variables.values())
+    tracemalloc.start()
+    try:
+        writer.merge_to_file(tmp_path / "merged.nc", n_chunks=n_chunks)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    _identical_files(tmp_path / "whole.nc", tmp_path / "merged.nc")
+    total_bytes = sum(v.nbytes for v in whole.variables.values())
+    assert peak < chunk_bytes, (peak, chunk_bytes)
+    assert chunk_bytes < total_bytes / 5
+
+
+def test_workers_identical_to_serial(small, tmp_path):
+    mission, cache, serial = small.mission, small.cache, small.serial
+    par = run_mission(mission, out=tmp_path / "w2.nc", cache_dir=cache, date_created=DATE,
+                      workers=2)
+    xr.testing.assert_identical(par.dataset, serial.dataset)
+    assert par.summary == {**serial.summary, "output": str(par.path),
+                           "elapsed_s": par.summary["elapsed_s"]}
+    assert "cluster_start_s" in par.timings
+
+
+def test_scheduler_address_with_threaded_workers(small, tmp_path):
+    """``scheduler=ADDRESS`` runs on an existing cluster: here one in-process worker with two
+    threads (chunks of one process at once: shared preparation cache, dask's configuration
+    restored after the run). Same file as the serial run."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                      dashboard_address=None) as cluster:
+        res = run_mission(small.mission, out=tmp_path / "s.nc", cache_dir=small.cache,
+                          date_created=DATE, scheduler=cluster.scheduler_address)
+    _identical_files(res.path, small.serial.path)
+    assert dask.config.get("scheduler", None) is None
+
+
+def test_worker_error_surfaces_like_serial(small, tmp_path):
+    """A chunk that fails in a Dask worker raises the same ConfigError (same message) in the
+    caller as it does in a serial run: here a job whose scene hash does not match the file."""
+    from chirplidar.mission import runner
+
+    mission, cache = small.mission, small.cache
+    config, _, plan = prepare(mission, cache_dir=cache)
+    job = runner.ChunkJob(
+        mission_path=str(mission.resolve()), mission_label=str(mission), overrides=(),
+        tier=None, seed=None, cache_dir=str(cache), chunk_dir=str(tmp_path / "c"),
+        date_created=DATE, configuration_sha256=runner._sha256(_config_toml(config)),
+        scene_sha256="0" * 64)
+    with pytest.raises(ConfigError) as serial_err:
+        runner.run_chunk(job, 0)
+    assert "changed on disk" in str(serial_err.value)
+    with pytest.raises(ConfigError) as worker_err:
+        runner._run_dask(job, [0, 1], plan, 2, None, None, {})
+    assert str(worker_err.value) == str(serial_err.value)
+    assert pickle.loads(pickle.dumps(job)) == job   # plain data, as shipped to workers
+
+
+def _cli(*args, env=None, **kw):
+    return subprocess.Popen([sys.executable, "-m", "chirplidar.cli", *args],
+                            env={**os.environ, **(env or {})}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+def test_kill_and_resume(small, tmp_path):
+    mission, cache, serial = small.mission, small.cache, small.serial
+    out = tmp_path / "killed.nc"
+    chunks = chunk_dir_for(out)
+    args = ["run", str(mission), "--out", str(out), "--no-progress"]
+    env = {"CHIRPLIDAR_CACHE": str(cache), "SOURCE_DATE_EPOCH": DATE_EPOCH}
+    # the test hook: 0.5 s after every chunk, so the kill lands between chunks 2 and 6
+    proc = _cli(*args, env={**env, CHUNK_DELAY_ENV: "0.5"})
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if chunks.is_dir() and len(ChunkWriter(chunks).completed_chunks()) >= 2:
+                break
+            if proc.poll() is not None:
+                pytest.fail(f"run ended before it was killed: {proc.communicate()}")
+            time.sleep(0.02)
+        else:
+            pytest.fail("no two chunk files within 120 s")
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    done = ChunkWriter(chunks).completed_chunks()
+    assert 2 <= len(done) < 6 and done == list(range(len(done)))
+    assert not out.exists() and (chunks / MANIFEST_NAME).is_file()
+    (chunks / ".chunk_00005.nc.killed.tmp").write_bytes(b"CDF partial")  # a killed write
+
+    # without --resume: refused, nothing touched
+    before = sorted(p.name for p in chunks.iterdir())
+    assert main([*args]) == 2
+    assert sorted(p.name for p in chunks.iterdir()) == before
+    # a different run (seed) cannot resume these chunks: the error names the directory
+    with pytest.raises(ConfigError, match=rf"{re.escape(str(chunks))}.*seed: 2026 there, 7 now"):
+        run_mission(mission, out=out, cache_dir=cache, resume=True, seed=7)
+    with pytest.raises(ConfigError, match=r"survey\.prf_hz = 100\.0 there, 50\.0 now"):
+        run_mission(mission, out=out, cache_dir=cache, resume=True,
+                    overrides=["survey.prf_hz=50"])
+    assert sorted(p.name for p in chunks.iterdir()) == before
+
+    # resume later (another SOURCE_DATE_EPOCH: the manifest's date must win); a serial run
+    # never uses dask.distributed (blocked here; xarray on its own imports dask.array and
+    # asks `distributed` for a client when they are installed)
+    script = ("import sys; sys.modules['dask.distributed'] = None; "
+              "from chirplidar.cli import main; sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.Popen([sys.executable, "-c", script, *args, "--resume"],
+                            env={**os.environ, **env, "SOURCE_DATE_EPOCH": "1900000000"},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    assert "chirplidar run: 3000 shots" in stdout
+    assert not chunks.exists()
+    _identical_files(out, serial.path)
+
+
+def test_existing_chunk_dir_needs_resume_or_overwrite(small, tmp_path, capsys):
+    mission, cache, serial = small.mission, small.cache, small.serial
+    out = tmp_path / "x.nc"
+    stale = chunk_dir_for(out)
+    stale.mkdir()
+    (stale / "chunk_00000.nc").write_bytes(b"not a chunk of this run")
+    args = ["run", str(mission), "--out", str(out), "--no-progress"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert str(stale) in err and "--resume" in err and "--overwrite" in err
+    # --resume: chunk files without a manifest cannot be matched to the run
+    with pytest.raises(ConfigError, match=rf"{re.escape(str(stale))}: chunk files without a manifest\.json"):
+        run_mission(mission, out=out, cache_dir=cache, resume=True)
+    # --overwrite discards them and runs
+    res = run_mission(mission, out=out, cache_dir=cache, overwrite=True, date_created=DATE)
+    _identical_files(res.path, serial.path)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--workers", "0"], "--workers must be >= 1"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "exclusive"),
+])
+def test_cli_parallel_options_checked(small, argv, message, capsys):
+    tmp, mission = small.tmp, small.mission
+    assert main(["run", str(mission), "--out", str(tmp / "never.nc"), *argv]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp / "never.nc").exists() and not chunk_dir_for(tmp / "never.nc").exists()
+
+
+def test_run_mission_parallel_arguments_checked(small):
+    tmp, mission = small.tmp, small.mission
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        run_mission(mission, out=tmp / "never.nc", workers=0)
+    with pytest.raises(ValueError, match="exclusive"):
+        run_mission(mission, out=tmp / "never.nc", workers=2, scheduler="tcp://127.0.0.1:1")
