@@ -30,6 +30,13 @@ width is the quadrature sum of the resolution width 0.886 / T_ov and the spread'
 The measured range centres on the power-weighted mean range. (The rf tier sums the sub-ray echoes
 coherently instead: see ``measure_rf``.)
 
+Carrier fading (``channel.carrier_phase = "random"``, the field instrument's setting): the nodes
+hold the mean over a uniform carrier phase; each shot's SNR takes its own fading factor
+(``tiers.link.carrier_fading_factor``: 2 sin^2 psi for one homodyne record, averaged over the
+record's K chirps in power), drawn on its own stream, as the rf and baseband tiers draw the phase
+per chirp. Without it a K = 1 survey would detect shots near threshold by the mean SNR while the
+other tiers fade (speckle x fading is chi-square of one degree of freedom, not exponential).
+
 Doppler (``doppler`` in the scene's effects): f_d = 2 v / lambda from each shot's closing speed
 (platform velocity along the beam; the terrain is fixed in ECEF, so for satellites the ECEF
 velocity already holds the Earth's rotation). A shift the record resolves (|f_d| >= 1 / T_ov)
@@ -49,7 +56,7 @@ from ..target import (cox_munk_mss, lambertian_power_fraction, receiver_cone_hal
                       specular_return_fraction)
 from ..tiers.budget import make_budget, reference_delay_s
 from ..tiers.common import beat_flags
-from ..tiers.link import crb_sigma_f_hz, simulate_link
+from ..tiers.link import carrier_fading_factor, crb_sigma_f_hz, simulate_link
 from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
 from .survey import stream
 
@@ -57,6 +64,8 @@ STREAM_EFFECTS = 100      # + beam index: each beam's effect draws
 STREAM_NOISE = 200        # measurement noise of the link tier
 STREAM_RF = 1_000_000     # + flat shot index: each rf shot's own stream
 STREAM_BASEBAND = 300     # + batch index: each baseband batch's stream
+STREAM_FADING = 900_000   # carrier-phase fading of the link tier (below STREAM_RF, above the
+                          # baseband batches of any practical chunk)
 BASEBAND_BATCH = 256      # shots per baseband call (sorted by range: one range gate per batch)
 
 _RANGE_STEP = 0.01        # relative node spacing in range
@@ -252,7 +261,9 @@ def measure_link(config, scene, geom, seq) -> dict:
         t_ov = np.interp(r_mean[ok], r_nodes, t_nodes)
         f_d = doppler_hz(config, scene, geom)[ok]
         resolved = np.abs(f_d) >= 1.0 / t_ov
-        snr_ok = np.where(resolved, snr_ok * split, snr_ok)
+        # Carrier fading about the nodes' mean phase power; a resolved Doppler split replaces it.
+        fade = carrier_fading_factor(config, stream(seq, STREAM_FADING), snr_ok.size)
+        snr_ok = np.where(resolved, snr_ok * split, snr_ok * fade)
         # Footprint spread: a broadened line of width ratio g (module docstring).
         sigma_f = rate * 2.0 * n_grp * r_std[ok] / SPEED_OF_LIGHT_M_S
         g = np.sqrt(1.0 + (2.355 * sigma_f * t_ov / 0.886) ** 2)

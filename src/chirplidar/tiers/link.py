@@ -7,6 +7,12 @@ mean operating point. SNR = tone / (noise PSD x RBW), as the rf tier measures it
 
 Range: the measured beat is drawn around the true one with the Cramer-Rao spread of a tone of the
 overlap duration (Rife & Boorstyn 1974), so the link tier's d_rx has a realistic scatter; no spectrum.
+
+Carrier phase ``random``: :func:`simulate_link` uses the mean over a uniform phase (half the
+optimum-phase power; its SNR is the mean SNR that sweeps and sensitivity curves need). The per-shot
+fading about that mean (thesis eq. 3.3.12, Sec. 5 field trial, Appendix D), after the record's
+averaging, is :func:`carrier_fading_factor`; survey runs (``mission.measure.measure_link``) apply it
+shot by shot, as the rf and baseband tiers draw the phase per record.
 """
 
 from __future__ import annotations
@@ -50,6 +56,58 @@ def crb_sigma_f_hz(snr, rbw_hz: float, duration_s):
     return np.sqrt(6.0 / np.maximum(e_over_n0, 1e-12)) / (2 * np.pi * np.asarray(duration_s, float))
 
 
+_FADING_BLOCK = 1 << 20  # shots x records per block of carrier-phase draws (8 MB per array)
+
+
+def carrier_fading_factor(config, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n,) per-shot factors, mean 1, on the link tier's SNR for a uniformly random carrier phase.
+
+    The balanced pair reads 2 R Im(E_LO E_s*): a record's beat power goes as sin^2(psi) (thesis eq.
+    3.3.12, "a homodyne fading term"); :func:`simulate_link` uses its mean 1/2. A record of K chirps
+    (``processing.averages``), each with its own uniform psi_k (the phase wanders between chirps, as
+    the rf and baseband tiers draw it), gives the SNR times
+
+    * power averaging: F = (2/K) sum_k sin^2 psi_k (K = 1: 2 sin^2 psi, arcsine law; F -> 1 with
+      variance 1/(2K) as K grows);
+    * coherent averaging: F = (2/K) (sum_k sin psi_k)^2 (the mean record's amplitude; chi-square of
+      one degree of freedom for large K: coherent averaging never removes the fading).
+
+    The phase-diversity arms read sin^2 and cos^2 (Appendix C) and their spectra are summed, so
+    F = (r1^2 p1 + r2^2 p2) / ((r1^2 + r2^2) / 2), p1 and p2 the two quadratures' shares as above
+    (power averaging: p1 + p2 = 1, no fading for matched arms). Ones for the other carrier phases
+    and receivers (the optimum and propagation phases are deterministic; direct and heterodyne
+    detection do not depend on the optical phase). A Doppler shift the record resolves replaces
+    the fading by the line split (Appendix D): the caller leaves those shots at 1. Laser phase noise
+    over the lag is a separate mean factor (the coherence in :func:`simulate_link`); only the
+    static phase fades here. Draws n x K uniforms from ``rng`` when the factor is not 1.
+    """
+    n = int(n)
+    ones = np.ones(n)
+    sysc, proc = config.system, config.processing
+    if (config.channel.carrier_phase != "random" or sysc.receiver != "coherent"
+            or sysc.coherent_mode not in ("homodyne", "phase_diversity") or n == 0):
+        return ones
+    k = int(proc.averages)
+    p1, p2 = np.empty(n), np.empty(n)
+    rows = max(1, _FADING_BLOCK // k)
+    for s0 in range(0, n, rows):
+        sl = slice(s0, min(n, s0 + rows))
+        psi = rng.uniform(0.0, 2 * np.pi, (sl.stop - sl.start, k))
+        s, c = np.sin(psi), np.cos(psi)
+        if proc.averaging == "coherent":
+            p1[sl] = np.sum(s, axis=1) ** 2 / k
+            p2[sl] = np.sum(c, axis=1) ** 2 / k
+        else:
+            p1[sl] = np.mean(s * s, axis=1)
+            p2[sl] = 1.0 - p1[sl]
+    if sysc.coherent_mode == "homodyne":
+        return 2.0 * p1
+    bud = make_budget(config)
+    resp = responsivities(config, bud.nu_hz)
+    w1, w2 = resp["balanced_1"] ** 2, resp["balanced_2"] ** 2
+    return (w1 * p1 + w2 * p2) / (0.5 * (w1 + w2))
+
+
 def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                   keep_spectrum: bool = False) -> dict:
     bud = make_budget(config)
@@ -76,7 +134,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     returns = channel_returns(config, batch, rng)
     flags = detection_flags(config, bud, returns)
     if cp == "random":
-        phase_power = np.full(batch, 0.5)  # the mean over a uniform phase
+        # The mean over a uniform phase; the per-shot fading is carrier_fading_factor.
+        phase_power = np.full(batch, 0.5)
     else:
         psi = (optimal_phase(mode) if cp == "optimal"
                else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
