@@ -1,6 +1,7 @@
 """Kernels against closed forms and independent numerical methods."""
 
 import numpy as np
+from scipy import stats
 
 from chirplidar.config import load_mission
 from chirplidar.processing import analyze_records
@@ -67,3 +68,75 @@ def test_white_noise_calibration():
     res = _analyze(sigma * rng.standard_normal(n), fs, r, span=80e6)
     # ~5000 bins averaged: standard error 1.4 % (0.06 dB).
     assert abs(10 * np.log10(res.noise_psd_w_per_hz[0] / (2 * sigma**2 / (fs * r)))) < 0.25
+
+
+def test_unit_normals_are_standard_gaussian():
+    # Box-Muller (receiver.detectors.unit_normals) against N(0, 1): KS test, the first four
+    # moments within 5 standard errors, the two-sided tail beyond 4 sigma (2 Phi(-4) = 6.33e-5)
+    # within 5 binomial sigmas, and no correlation between the cos and sin halves of the pairs.
+    from chirplidar.receiver.detectors import unit_normals
+
+    n = 2_000_001   # odd: the last pair is cut
+    x = unit_normals(np.random.default_rng(7), n).astype(float)
+    assert x.shape == (n,) and np.all(np.isfinite(x))
+    assert stats.kstest(x, "norm").pvalue > 1e-3
+    se = 1 / np.sqrt(n)
+    assert abs(x.mean()) < 5 * se
+    assert abs(x.var() - 1) < 5 * np.sqrt(2) * se
+    assert abs(stats.skew(x)) < 5 * np.sqrt(6) * se
+    assert abs(stats.kurtosis(x)) < 5 * np.sqrt(24) * se
+    p = 2 * stats.norm.sf(4.0)
+    assert abs(np.mean(np.abs(x) > 4) - p) < 5 * np.sqrt(p / n)
+    half = (n + 1) // 2
+    m = n - half
+    assert abs(np.corrcoef(x[:m], x[half:half + m])[0, 1]) < 5 / np.sqrt(m)
+    a = unit_normals(np.random.default_rng(3), (4, 2, 5))
+    assert a.shape == (4, 2, 5) and a.dtype == np.float32
+    assert np.array_equal(a, unit_normals(np.random.default_rng(3), (4, 2, 5)))
+
+
+def _crossings_loop(x, y, level, start, lo, hi):
+    """The 3 dB walk of the thesis's FFT_peak.m, one row at a time (reference for _crossings)."""
+    out = np.full((2, y.shape[0]), np.nan)
+    for b in range(y.shape[0]):
+        xb = x if x.ndim == 1 else x[b]
+        if y[b, start[b]] < level[b]:
+            continue
+        for side, step in ((0, -1), (1, 1)):
+            j = start[b] + step
+            while lo[b] <= j <= hi[b] and y[b, j] >= level[b]:
+                j += step
+            if lo[b] <= j <= hi[b]:
+                k = j - step
+                frac = (y[b, k] - level[b]) / (y[b, k] - y[b, j])
+                out[side, b] = xb[k] + frac * (xb[j] - xb[k])
+    return out
+
+
+def test_windowed_crossings_and_range_sums_match_loops():
+    # The windowed 3 dB search (narrow and wide peaks, peaks at the edges, walks that leave the
+    # window or the allowed range) and the noise-window sums equal straightforward loops.
+    from chirplidar.processing.spectrum import _crossings, _range_sums
+
+    rng = np.random.default_rng(11)
+    b, n = 64, 700
+    x = np.arange(n) * 0.5
+    y = rng.exponential(size=(b, n))
+    start = rng.integers(0, n, b)
+    start[:3] = (0, n - 1, 5)
+    width = rng.choice([1.0, 4.0, 40.0, 400.0], b)
+    idx = np.arange(n)
+    y += 50 * np.exp(-0.5 * ((idx - start[:, None]) / width[:, None]) ** 2)
+    level = 0.5 * y[np.arange(b), start]
+    lo = np.maximum(start - rng.integers(0, 300, b), 0)
+    hi = np.minimum(start + rng.integers(0, 300, b), n - 1)
+    ref = _crossings_loop(x, y, level, start, lo, hi)
+    for window in (None, 8, 64):
+        got = np.array(_crossings(x, y, level, start, lo, hi, window=window))
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12, equal_nan=True)
+    a = rng.integers(-5, n + 5, b)
+    for span in (30, n):     # the gathering and the prefix-sum branches
+        z = np.minimum(a + rng.integers(-3, span, b), n + 5)
+        want = [y[k, max(a[k], 0):max(min(z[k], n), 0)].sum() if z[k] > a[k] else 0.0
+                for k in range(b)]
+        np.testing.assert_allclose(_range_sums(y, a, z), want, rtol=1e-12, atol=1e-12)

@@ -10,6 +10,8 @@ point-target study (at every SNR point), reference = rf tier at the mission's se
     ``peak_method``    rf ``processing.peak_method`` (parabolic, bin; dtft is the reference)
     ``zero_pad``       rf ``processing.zero_pad_factor`` (2, 4; 1 is the reference)
     ``baseband_rate``  baseband tier, ``simulation.baseband_rate_hz`` (None = the tier's default)
+    ``precision``      baseband tier, ``simulation.baseband_precision = "double"`` (the default,
+                       "single", is the ``baseband_rate`` family's default-rate row)
     ``link``           link tier (closed form)
 footprint study (at the highest SNR point), reference = rf with ``sub_rays_reference`` echoes:
     ``sub_rays``       a Gaussian beam (1/e^2 radius w at the target) on a plane tilted by
@@ -51,10 +53,10 @@ import numpy as np
 
 MISSION_NAME = "thesis_ch5_bench.toml"
 DEFAULT_SNR_DB = (10.0, 20.0, 30.0)
-FAMILIES = ("sample_rate", "delay_method", "peak_method", "zero_pad", "baseband_rate", "link",
-            "sub_rays", "screen")
+FAMILIES = ("sample_rate", "delay_method", "peak_method", "zero_pad", "baseband_rate", "precision",
+            "link", "sub_rays", "screen")
 STUDIES = {"point target": ("sample_rate", "delay_method", "peak_method", "zero_pad",
-                            "baseband_rate", "link"),
+                            "baseband_rate", "precision", "link"),
            "footprint": ("sub_rays",), "turbulence": ("screen",)}
 PEAK_METHODS = ("bin", "parabolic", "dtft")
 HEX_COUNTS = tuple(3 * m * (m + 1) + 1 for m in range(16))   # 1, 7, 19, 37, 61, 91, 127, ...
@@ -301,6 +303,10 @@ def _point_settings(config, fams, sample_rates_hz, upsample_factors, peak_method
             out.append(Setting(study, "baseband_rate", "baseband", label,
                                "simulation.baseband_rate_hz", "default" if r is None else f"{r:g}",
                                over))
+    if "precision" in fams:
+        out.append(Setting(study, "precision", "baseband", "baseband double precision",
+                           "simulation.baseband_precision", "double",
+                           {"simulation.baseband_precision": "double"}))
     if "link" in fams:
         out.append(Setting(study, "link", "link", "link", "", "closed form"))
     return out

@@ -56,6 +56,11 @@ class Simulation(_Model):
         "detector's output rate). Unset = twice the processed band's top "
         "(processing.peak_search_max_hz, else the chirp's start frequency F1 + F0, below which "
         "every self-chirped beat lies), raised to a fast FFT length")
+    baseband_precision: Literal["single", "double"] = Field(
+        "single", description="baseband tier: floating-point precision of the noisy records and "
+        "their FFT (the signal's phases are always computed in double). 'single' halves the FFT "
+        "and noise cost; tests/test_baseband.py shows it moves SNR and range by far less than "
+        "their noise")
 
 
 class System(_Model):

@@ -6,6 +6,7 @@ transimpedance squared and divided by the load they give the output PSDs reporte
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,20 +92,65 @@ def current_noise_variance(current_a, dark_a: float, circuit_psd: float, fs_hz: 
     return var
 
 
+def unit_normals(rng: np.random.Generator, shape, out: np.ndarray | None = None) -> np.ndarray:
+    """Independent standard normals of ``shape`` (float32), by the Box-Muller transform.
+
+    Pairs (r cos a, r sin a) with r = sqrt(-2 ln(1 - u)), a = 2 pi v, u ~ U[0, 1) in float64 (so
+    the tail reaches sqrt(2 ln 2**53) = 8.6 sigma) and v ~ U[0, 1) in float32 are exactly
+    Gaussian and independent (Box & Muller 1958). Vectorised float32 log, sin and cos make it
+    about twice as fast here as numpy's float32 ziggurat, and receiver noise is the largest
+    single cost of a baseband shot; ``bench --what tiers`` measures it. ``out``: an optional
+    C-contiguous float32 array of ``shape`` to fill (and return).
+    """
+    shape = (int(shape),) if np.isscalar(shape) else tuple(int(k) for k in shape)
+    size = math.prod(shape)
+    half = (size + 1) // 2
+    r = np.subtract(1.0, rng.random(half))     # (0, 1], exactly: np.log is vectorised, log1p not
+    np.log(r, out=r)
+    r *= -2.0
+    np.sqrt(r, out=r)
+    r = r.astype(np.float32)
+    a = rng.random(half, dtype=np.float32)
+    a *= np.float32(2.0 * np.pi)
+    if out is not None and (out.shape != shape or out.dtype != np.float32
+                            or not out.flags.c_contiguous):
+        raise ValueError(f"unit_normals: out must be a C-contiguous float32 array of shape "
+                         f"{shape}, got {out.dtype} {out.shape}")
+    flat = out.reshape(-1) if out is not None and size % 2 == 0 else np.empty(2 * half, np.float32)
+    np.cos(a, out=flat[:half])
+    np.sin(a, out=flat[half:])
+    flat[:half] *= r
+    flat[half:] *= r
+    if out is None:
+        return flat[:size].reshape(shape)
+    if size % 2:
+        out.reshape(-1)[:] = flat[:size]
+    return out
+
+
 def current_noise(rng: np.random.Generator, shape, current_a, dark_a: float, circuit_psd: float,
-                  fs_hz: float) -> np.ndarray:
+                  fs_hz: float, dtype=np.float64, gain=1.0, out: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Shot noise of a time-varying current plus white circuit noise, in one Gaussian draw (A).
 
     Shot: one-sided PSD 2 q I(t), i.e. variance q (I(t) + I_dark) Fs per sample; circuit: one-sided
     PSD S, variance S Fs / 2. Independent Gaussians, so their sum is one Gaussian. For a balanced
     pair pass I1 + I2: the difference of two independent noises has the summed variance. The draw
     always has the full record shape (batch, averages, N), whatever the shape of the current:
-    every record gets its own noise. Unit normals are drawn in float32 (twice as fast; a noise
-    sample needs no 53-bit mantissa); the variance and the result are float64. The rf tier calls
-    it at the full rate, the baseband tier at the detector output rate with the current's slow part.
+    every record gets its own noise. Unit normals come from :func:`unit_normals` (float32: a noise
+    sample needs no 53-bit mantissa); the variance is float64, the result ``dtype``, times
+    ``gain`` (e.g. a transimpedance in V/A, scalar or broadcastable over the samples). The rf
+    tier calls it at the full rate, the baseband tier at the detector output rate with the
+    current's slow part. ``out``: an optional C-contiguous array of the record shape and
+    ``dtype`` to fill.
     """
     sigma = current_noise_variance(current_a, dark_a, circuit_psd, fs_hz)  # variance ...
     np.maximum(sigma, 0.0, out=sigma)                     # (rounding can leave -1e-30 A)
     np.sqrt(sigma, out=sigma)                             # ... then its square root, in place
-    unit = rng.standard_normal(np.broadcast_shapes(shape, np.shape(sigma)), dtype=np.float32)
-    return np.multiply(unit, sigma, dtype=np.float64)
+    sigma = sigma * gain
+    full = np.broadcast_shapes(tuple(shape), np.shape(sigma))
+    if np.dtype(dtype) == np.float32:
+        unit = unit_normals(rng, full, out=out)
+        unit *= sigma.astype(np.float32) if np.ndim(sigma) else np.float32(sigma)
+        return unit
+    return np.multiply(unit_normals(rng, full), sigma, dtype=dtype, out=out)

@@ -28,6 +28,7 @@ STYLE = {
     ("rf", "peak_method"): ("C2", "^", "rf: peak interpolation"),
     ("rf", "zero_pad"): ("C3", "D", "rf: zero padding"),
     ("baseband", "baseband_rate"): ("C4", "v", "baseband: sample rate"),
+    ("baseband", "precision"): ("C4", "X", "baseband: double precision"),
     ("link", "link"): ("C5", "P", "link (closed form)"),
     ("rf", "sub_rays"): ("C6", "o", "rf: sub-rays per footprint"),
     ("baseband", "sub_rays"): ("C9", "v", "baseband: sub-rays per footprint"),
