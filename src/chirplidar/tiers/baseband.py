@@ -22,7 +22,7 @@ the same per-effect streams. Noise: shot noise of the slowly varying arm current
 noise, drawn at the baseband rate with the rf tier's own function (receiver.detectors.current_noise),
 so the noise PSD is the rf tier's. ASE beating with the LO is a white current of PSD
 4 |c|^2 P_lo(t) h S_ASE (c: the arm's coupler product). Processing is the rf tier's
-(tiers.common.process_records) on the shorter record.
+(tiers.common.analyze_block) on the shorter record, block by block.
 
 Averaged records: a coherent average of K records is the mean of the K signals plus ONE noise record
 of variance 1/K of a single record's (exact: a mean of Gaussians is Gaussian). A power average of K
@@ -48,6 +48,7 @@ import scipy.fft
 import scipy.linalg.blas
 from scipy.special import jv
 
+from .._threads import single_threaded_blas
 from ..channel.effects import ShotReturns, channel_returns, effect_rng
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
@@ -56,7 +57,8 @@ from ..transmitter import wiener_phase
 from ..transmitter.mzm import mzm_drive_angles
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import coupler_field_transmission, make_budget, responsivities
-from .common import detection_flags, optimal_phase, peak_search_max_hz, process_records
+from .common import (analyze_block, concatenate_blocks, detection_flags, finish_outputs,
+                     optimal_phase, peak_search_max_hz)
 from .echoes import Echoes
 
 _TABLE_POINTS = 4097        # Bessel tables over the envelope w in [0, 1] (linear interpolation:
@@ -211,6 +213,11 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
     Shots are processed in blocks of at most 2**20 shots x records x samples; the random draws
     depend on the seed and the batch only.
     """
+    with single_threaded_blas():
+        return _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns)
+
+
+def _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns) -> dict:
     if echoes is not None and not isinstance(echoes, Echoes):
         raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
                          f"got {type(echoes).__name__}")
@@ -272,8 +279,10 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
                        for c in c_noise]
 
     per_record = (k_avg if (cp == "random" or lw > 0) else 1)
-    block = max(1, _BLOCK_ELEMENTS // (per_record * n * max(1, offsets.shape[1])))
     coherent_avg = proc.averaging == "coherent"
+    # Records per shot in the block's largest arrays: K signals, or K noisy records to power-average.
+    rows = k_avg if (per_record > 1 or not coherent_avg) else 1
+    block = max(1, _BLOCK_ELEMENTS // (rows * n * max(1, offsets.shape[1])))
     # The noisy records and their FFT in the configured precision (phases above are float64).
     dtype = np.float32 if sim.baseband_precision == "single" else np.float64
     # Power averages drawn directly: the same signal in every record, stationary white noise
@@ -281,14 +290,16 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
     direct = (DIRECT_POWER_AVERAGE and not coherent_avg and k_avg > 1 and per_record == 1
               and mode == "homodyne" and proc.zero_pad_factor == 1 and proc.peak_method != "dtft"
               and bool(gate.all()) and bool(np.all(bud.train.envelope_samples() == 1.0)))
-    direct_var = []
     dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
-    outs_main = []
-    # Noisy records are written in place, block by block (no concatenation of the blocks).
-    rec_shape = (batch, 1 if coherent_avg else k_avg, n)
-    arms_out = ((np.empty(rec_shape, dtype), np.empty(rec_shape, dtype))
-                if mode != "homodyne" else None)
-    main_out = np.empty(rec_shape, dtype) if mode == "homodyne" and not direct else None
+    # Each block is simulated and analysed before the next: memory is bounded by the block. Its
+    # noisy records are written in place into buffers reused from block to block.
+    rec_shape = (min(block, batch), 1 if coherent_avg else k_avg, n)
+    bufs = [np.empty(rec_shape, dtype) for _ in range(1 if mode == "homodyne" else 2)]
+    search_max = min(peak_search_max_hz(config, bud), top)
+    analysis = partial(analyze_block, config, load_ohm=b.output_impedance_ohm, flags=flags,
+                       fs_hz=fs, transfer=single_pole(b.bandwidth_hz), search_max_hz=search_max,
+                       keep_spectrum=keep_spectrum)
+    blocks = []
     mean_p = circuit = None
     sat_peak = 0.0
     doppler_on = bool(np.any(doppler != 0))
@@ -380,16 +391,19 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
                 total = total + ase_current[0] * p_lo
             nz = circuit[0]
             if direct:
-                # Noiseless records and each shot's noise variance per sample (V^2).
+                # Noiseless records and each shot's noise variance per sample (V^2), drawn per bin.
                 tot = np.broadcast_to(total, (m, 1, n))[:, 0, 0]
                 var = current_noise_variance(tot, 2 * dark, nz.thermal + nz.amplifier, fs)
-                direct_var.append(b.transimpedance_ohm ** 2 * var)
                 diff = current((1, -1), cross[0] - cross[1], gain=b.transimpedance_ohm)
-                outs_main.append(np.broadcast_to(_dense(diff), (m, 1, n)))
+                blocks.append(analysis({"main": np.broadcast_to(_dense(diff), (m, 1, n))},
+                                       spectrum_analyzer=partial(
+                                           draw_power_average, averages=k_avg, rng=rng,
+                                           var_v2=b.transimpedance_ohm ** 2 * var)))
             else:
                 diff = current((1, -1), cross[0] - cross[1], gain=z_gate)
                 _noisy(rng, diff, total, 2 * dark, nz.thermal + nz.amplifier, fs, shape,
-                       coherent_avg, k_avg, z_gate, dtype, out=main_out[sl])
+                       coherent_avg, k_avg, z_gate, dtype, out=bufs[0][:m])
+                blocks.append(analysis({"main": bufs[0][:m]}))
         else:
             for j in (0, 1):
                 one = tuple(1 if a == j else 0 for a in (0, 1))
@@ -399,7 +413,8 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
                 nz = circuit[1 + j]
                 _noisy(rng, current(one, cross[j], gain=z_gate), total, dark,
                        nz.thermal + nz.amplifier, fs, shape, coherent_avg, k_avg, z_gate, dtype,
-                       out=arms_out[j][sl])
+                       out=bufs[j][:m])
+            blocks.append(analysis({"arm1": bufs[0][:m], "arm2": bufs[1][:m]}))
     if mode == "homodyne":
         # The rf tier reads the amplifier's drive from the full-rate difference current; the
         # baseband record lacks the sum-frequency terms, so take the bound the full-rate current
@@ -407,19 +422,9 @@ def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
         diff_peak = sat_peak * _field_peak(config, bud) ** 2 / (0.5 * (r[0] + r[1]))
         if diff_peak > b.saturation_power_w:
             flags.append("saturation")
-        records = {"main": np.concatenate(outs_main, axis=0) if direct else main_out}
-        noise = circuit[0]
-    else:
-        records = {"arm1": arms_out[0], "arm2": arms_out[1]}
-        noise = circuit[1]
-    search_max = min(peak_search_max_hz(config, bud), top)
-    analyzer = None
-    if direct:
-        analyzer = partial(draw_power_average, var_v2=np.concatenate(direct_var), averages=k_avg,
-                           rng=rng)
-    return process_records(config, bud, records, noise, b.output_impedance_ohm, flags, returns,
-                           fs_hz=fs, transfer=single_pole(b.bandwidth_hz), search_max_hz=search_max,
-                           keep_spectrum=keep_spectrum, tier="baseband", spectrum_analyzer=analyzer)
+    result, extra = concatenate_blocks(blocks)
+    return finish_outputs(config, bud, result, extra, circuit[0 if mode == "homodyne" else 1],
+                          flags, returns, tier="baseband")
 
 
 def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, var_v2: np.ndarray,

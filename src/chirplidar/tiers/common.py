@@ -183,19 +183,19 @@ def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
                       f_lo_hz=lo, f_hi_hz=hi, snr=snr)
 
 
-def process_records(config, bud, records: dict, noise, load_ohm: float, flags: list, returns, *,
-                    fs_hz: float, transfer, search_max_hz: float, keep_spectrum: bool, tier: str,
-                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None) -> dict:
-    """The receiver's processing, shared by the rf and baseband tiers: optional squaring (Appendix
-    D), PN correlation or spectrum peak analysis, the phase-diversity arms' summed spectra, and the
-    Table 4.10 outputs.
+def analyze_block(config, records: dict, load_ohm: float, flags: list, *, fs_hz: float, transfer,
+                  search_max_hz: float, keep_spectrum: bool, pn_reference=None,
+                  spectrum_analyzer=None) -> tuple[PeakResult, dict]:
+    """The receiver's processing of a block of shots, shared by the rf and baseband tiers:
+    optional squaring (Appendix D), PN correlation or spectrum peak analysis, the phase-diversity
+    arms' summed spectra. Returns the peak result and the extra per-shot outputs (the arms').
 
     ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
     ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
     same keyword interface (the baseband tier's direct draw of power-averaged spectra).
     """
     proc, sysc = config.processing, config.system
-    extra = dict(extra or {})
+    extra = {}
     analyze_main = spectrum_analyzer or analyze_records
     kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
               peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
@@ -209,13 +209,14 @@ def process_records(config, bud, records: dict, noise, load_ohm: float, flags: l
         # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
         y = records["main"]
         records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
-        flags.append("squaring_recovery")
+        if "squaring_recovery" not in flags:
+            flags.append("squaring_recovery")
         kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
         kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs_hz / 2)
     if sysc.modulation == "pn_code":
         # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
-        result = pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc)
-    elif "main" in records:
+        return pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc), extra
+    if "main" in records:
         result = analyze_main(records["main"], fs_hz, load_ohm, averaging=proc.averaging,
                               keep_spectrum=keep_spectrum, **kw)
     else:
@@ -235,9 +236,43 @@ def process_records(config, bud, records: dict, noise, load_ohm: float, flags: l
         # The line found is 2 f_R; its power and SNR are those of the squared record.
         result = dataclasses.replace(result, f_peak_hz=result.f_peak_hz / 2,
                                      f_lo_hz=result.f_lo_hz / 2, f_hi_hz=result.f_hi_hz / 2)
-    if sysc.modulation == "pn_code":
+    return result, extra
+
+
+def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResult, dict]:
+    """The :func:`analyze_block` results of consecutive blocks as one batch."""
+    if len(blocks) == 1:
+        return blocks[0]
+    results = [b[0] for b in blocks]
+    fields = {}
+    for f in dataclasses.fields(PeakResult):
+        parts = [getattr(r, f.name) for r in results]
+        if parts[0] is None or f.name == "spectrum_f_hz":
+            fields[f.name] = parts[0]
+        else:
+            fields[f.name] = np.concatenate([np.atleast_1d(p) for p in parts], axis=0)
+    extra = {k: np.concatenate([np.atleast_1d(b[1][k]) for b in blocks]) for k in blocks[0][1]}
+    return PeakResult(**fields), extra
+
+
+def finish_outputs(config, bud, result: PeakResult, extra: dict, noise, flags, returns, *,
+                   tier: str) -> dict:
+    """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds)."""
+    if config.system.modulation == "pn_code":
         return assemble_outputs(config, bud, result, noise, flags, tier=tier, lag_s=result.f_peak_hz,
                                 lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
                                 power_factor=returns.power_factor)
     return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier=tier,
                             power_factor=returns.power_factor)
+
+
+def process_records(config, bud, records: dict, noise, load_ohm: float, flags: list, returns, *,
+                    fs_hz: float, transfer, search_max_hz: float, keep_spectrum: bool, tier: str,
+                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None) -> dict:
+    """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
+    further per-shot outputs to report)."""
+    result, arms = analyze_block(config, records, load_ohm, flags, fs_hz=fs_hz, transfer=transfer,
+                                 search_max_hz=search_max_hz, keep_spectrum=keep_spectrum,
+                                 pn_reference=pn_reference, spectrum_analyzer=spectrum_analyzer)
+    return finish_outputs(config, bud, result, {**(extra or {}), **arms}, noise, flags, returns,
+                          tier=tier)
