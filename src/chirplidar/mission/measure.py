@@ -27,15 +27,38 @@ Footprint spread: the power-weighted range spread sigma_R of the sub-rays spread
 sigma_f = kappa 2 n sigma_R / c. The link tier approximates the broadened line as a tone whose
 width is the quadrature sum of the resolution width 0.886 / T_ov and the spread's FWHM
 2.355 sigma_f: the peak SNR drops, and the effective duration shortens, by that width ratio g.
-The measured range centres on the power-weighted mean range. (The rf tier sums the sub-ray echoes
-coherently instead: see ``measure_rf``.)
+The measured range centres on the power-weighted mean range. (The baseband and rf tiers draw the
+broadened line itself: see "Footprint echoes" below.)
 
-Carrier fading (``channel.carrier_phase = "random"``, the field instrument's setting): the nodes
+Carrier phase. ``channel.carrier_phase = "random"`` (the field instrument's setting): the nodes
 hold the mean over a uniform carrier phase; each shot's SNR takes its own fading factor
 (``tiers.link.carrier_fading_factor``: 2 sin^2 psi for one homodyne record, averaged over the
 record's K chirps in power), drawn on its own stream, as the rf and baseband tiers draw the phase
 per chirp. Without it a K = 1 survey would detect shots near threshold by the mean SNR while the
 other tiers fade (speckle x fading is chi-square of one degree of freedom, not exponential).
+``"optimal"`` and ``"propagation"``: the nodes hold the optimum phase and each shot takes the
+factor of its own static phase (``tiers.link.static_phase_factor``, sin^2 psi for the balanced
+pair): the optimum, or -2 pi nu (tau - tau_ref) of the shot's own mean delay (a platform's range
+moves by many wavelengths from shot to shot, so over a survey this is the arcsine law), plus the
+speckle field's phase when that effect is on, as the other tiers add it: with speckle on, one
+homodyne record then fades as chi-square of one degree of freedom whatever the setting (the
+speckle field is circular: |z|^2 sin^2(psi + arg z) = (Im part)^2).
+
+Footprint echoes (baseband and rf tiers)
+----------------------------------------
+The sub-rays sample the footprint; they are not scatterers, and their optical path differences
+(2 k0 (R_k - R_l), thousands of wavelengths) must not interfere (summing them with amplitudes
+sqrt(w_k) and their propagation phases gave up to (sum_k sqrt(w_k))^2 ~ 6.4 times the power on
+flat snow with 7 sub-rays, or a fraction of it). ``footprint_echoes`` builds the echoes:
+
+* speckle on: each sub-ray's patch returns its own speckle field sqrt(w_k) z_k
+  (``subray_speckle_fields``: the speckle effect's draw per sub-ray, circular complex Gaussian
+  for M = 1) at its own delay: mean power sum_k w_k, exponential for an unresolved footprint,
+  the mean spectrum the power-weighted sum of the sub-rays' lines;
+* speckle off: the mean return, deterministically: echoes on the chirp's resolution grid around
+  the power-weighted mean delay, with the mean line's powers (``footprint_cells``) and one
+  common phase, their record energy held at the mean power (``footprint_coherence``). An
+  unresolved footprint is one echo of its whole power; a spread one draws the mean line.
 
 Doppler (``doppler`` in the scene's effects): f_d = 2 v / lambda from each shot's closing speed
 (platform velocity along the beam; the terrain is fixed in ECEF, so for satellites the ECEF
@@ -52,11 +75,19 @@ from ..channel.effects import channel_returns
 from ..config.loader import config_with
 from ..doppler import doppler_shift_hz
 from ..geometry.raycast import weighted_range_stats
-from ..target import (cox_munk_mss, lambertian_power_fraction, receiver_cone_half_angle_rad,
-                      specular_return_fraction)
+from ..target import (
+    lambertian_power_fraction,
+    receiver_cone_half_angle_rad,
+    specular_return_fraction,
+)
 from ..tiers.budget import make_budget, reference_delay_s
-from ..tiers.common import beat_flags
-from ..tiers.link import carrier_fading_factor, crb_sigma_f_hz, simulate_link
+from ..tiers.common import beat_flags, optimal_phase
+from ..tiers.link import (
+    carrier_fading_factor,
+    crb_sigma_f_hz,
+    simulate_link,
+    static_phase_factor,
+)
 from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
 from .survey import stream
 
@@ -64,6 +95,7 @@ STREAM_EFFECTS = 100      # + beam index: each beam's effect draws
 STREAM_NOISE = 200        # measurement noise of the link tier
 STREAM_RF = 1_000_000     # + flat shot index: each rf shot's own stream
 STREAM_BASEBAND = 300     # + batch index: each baseband batch's stream
+STREAM_SUBRAY_SPECKLE = 400  # (key, beam, sub-ray): the sub-rays' speckle fields (baseband, rf)
 STREAM_FADING = 900_000   # carrier-phase fading of the link tier (below STREAM_RF, above the
                           # baseband batches of any practical chunk)
 BASEBAND_BATCH = 256      # shots per baseband call (sorted by range: one range gate per batch)
@@ -125,21 +157,199 @@ def _transmission(config, scene, geom):
 
 def _effects(config, scene, geom, seq, exclude=("doppler",)):
     """(n, b) power factor of the enabled channel effects, each beam on its own streams."""
+    return _effect_returns(config, scene, geom, seq, exclude)[0]
+
+
+def _effect_returns(config, scene, geom, seq, exclude=("doppler",)):
+    """(n, b) power factor and (n, b) carrier phase [rad] (the speckle field's phase) of the
+    enabled channel effects, each beam on its own streams."""
     names = [e for e in scene.effects if e not in exclude and e != "phase_noise"]
     n, b = geom.range_true_m.shape
     if not names or n == 0:
-        return np.ones((n, b))
+        return np.ones((n, b)), np.zeros((n, b))
+    cfg = _effects_config(config, scene, geom, names)
+    power, phase = np.empty((n, b)), np.empty((n, b))
+    for j in range(b):  # a handful of beams; the shots are vectorised
+        ret = channel_returns(cfg, n, stream(seq, STREAM_EFFECTS + j))
+        power[:, j], phase[:, j] = ret.power_factor, ret.phase_rad
+    return power, phase
+
+
+def _effects_config(config, scene, geom, names):
+    """The configuration the chunk's effects are drawn with: the chunk's median range."""
     hit = np.isfinite(geom.range_true_m)
     r_med = float(np.median(geom.range_true_m[hit])) if np.any(hit) else 1.0
     over = {"effects.enabled": list(names), "channel.distance_m": r_med,
             "channel.free_space": True}
     if "turbulence" in names:
         over["channel.cn2_m_minus_2_3"] = _equivalent_cn2(config, scene, geom, r_med)
-    cfg = config_with(config, over)
-    out = np.empty((n, b))
-    for j in range(b):  # a handful of beams; the shots are vectorised
-        out[:, j] = channel_returns(cfg, n, stream(seq, STREAM_EFFECTS + j)).power_factor
+    return config_with(config, over)
+
+
+def subray_speckle_fields(config, scene, geom, seq):
+    """(n, b, k) complex speckle factor of every footprint sub-ray, E|z|^2 = 1, or None when the
+    scene does not enable ``speckle``.
+
+    Each sub-ray's patch of a diffuse surface holds many scatterers: its field is the speckle
+    effect's draw (power gamma of ``effects.speckle.cells``, uniform phase: for M = 1, the coupled
+    single-mode receiver, a circular complex Gaussian; Goodman 2007 Ch. 3), each (beam, sub-ray)
+    on its own stream over the chunk's shots in time order (so ``shift_per_shot_m`` correlates
+    successive shots of the same sub-ray, and the footprint's field keeps the effect's shot-to-shot
+    correlation). The footprint field sum_k sqrt(w_k) z_k has mean power sum_k w_k.
+    """
+    if "speckle" not in scene.effects:
+        return None
+    n, b, k = geom.sub_range_m.shape
+    z = np.empty((n, b, k), complex)
+    if n == 0:
+        return z
+    cfg = _effects_config(config, scene, geom, ["speckle"])
+    for j in range(b):
+        for kk in range(k):  # k sub-rays per beam; the shots are vectorised
+            child = np.random.SeedSequence(
+                entropy=seq.entropy,
+                spawn_key=tuple(seq.spawn_key) + (STREAM_SUBRAY_SPECKLE, j, kk))
+            ret = channel_returns(cfg, n, np.random.default_rng(child))
+            z[:, j, kk] = np.sqrt(ret.power_factor) * np.exp(1j * ret.phase_rad)
+    return z
+
+
+_GRAM_POINTS = 2048       # time grid of the footprint's coherence factor (over one record)
+_GRAM_BLOCK = 1 << 21     # shots x sub-rays x points per block
+
+
+def _overlap(config, bud):
+    """The record's overlap of the two chirps on a grid: (instantaneous frequency of the return
+    f(t) [Hz], beat amplitude envelope A(t) >= 0, duration of one chirp's overlap [s]: the
+    equivalent rectangular duration (sum A)^2 / sum A^2 per chirp), where A > 0."""
+    train = bud.train
+    dur = config.simulation.duration_s
+    dt = dur / _GRAM_POINTS
+    t = (np.arange(_GRAM_POINTS) + 0.5) * dt
+    tc_sig = train.time_in_chirp(t - bud.delay_s)
+    env = (train.envelope(train.time_in_chirp(t - bud.ref_delay_s)) * train.envelope(tc_sig)
+           * train.record_gate(t, dur))
+    keep = env > 0
+    if not np.any(keep):
+        return np.zeros(0), np.zeros(0), 0.0
+    a = env[keep]
+    chirps = max(1, int(np.floor(dur / train.period_s + 1e-9)))
+    t_eq = float(a.sum() ** 2 / np.sum(a * a)) * dt / chirps
+    return train.f_start_hz + train.rate_hz_per_s * tc_sig[keep], a, t_eq
+
+
+def footprint_coherence(config, bud, amplitude, dtau_s) -> np.ndarray:
+    """(m,) record energy of the common-phase beat sum_k a_k b_k(t) relative to one sub-ray's:
+    <A^2(t) |sum_k a_k exp(j 2 pi f(t) dtau_k)|^2> / <A^2(t)>, for amplitudes with sum_k a_k = 1.
+
+    b_k is the beat of a sub-ray delayed by dtau_k: the same tone as at dtau = 0 with the extra
+    phase 2 pi f(t) dtau_k, f(t) the instantaneous chirp frequency of the return (f_start +
+    kappa t_c), under the overlap envelope A(t) of the two chirps in the record (``bud``: the
+    instrument at the shots' range). Two sub-rays' beats correlate as <A^2 cos(2 pi f dtau_kl)> /
+    <A^2> = cos(2 pi f_c dtau_kl) sinc(B dtau_kl) for a linear chirp over the band B about f_c:
+    1 for an unresolved footprint (the factor is then 1), -> 0 once the range spread is resolved
+    (the factor -> sum_k a_k^2). ``amplitude`` (m, k) >= 0, summing to 1 per shot; ``dtau_s``
+    (m, k) delay offsets (a common offset cancels). The beat's harmonics are left out.
+    """
+    a = np.asarray(amplitude, float)
+    d = np.asarray(dtau_s, float)
+    m, k = a.shape
+    f, env, _ = _overlap(config, bud)
+    if f.size == 0 or m == 0:
+        return np.ones(m)
+    a2 = env * env / np.sum(env * env)
+    out = np.empty(m)
+    rows = max(1, _GRAM_BLOCK // (k * f.size))
+    for s0 in range(0, m, rows):
+        sl = slice(s0, min(m, s0 + rows))
+        ph = 2 * np.pi * (d[sl, :, None] - d[sl, :1, None]) * f[None, None, :]   # (r, k, p)
+        re = np.einsum("rk,rkp->rp", a[sl], np.cos(ph))
+        im = np.einsum("rk,rkp->rp", a[sl], np.sin(ph))
+        out[sl] = (re * re + im * im) @ a2
     return out
+
+
+_CELL_MARGIN = 3          # resolution cells beyond the footprint's extreme delays
+_CELL_FLOOR = 1e-3        # cells below this share of the strongest are left out (-30 dB)
+
+
+def footprint_cells(config, bud, share, dtau_s):
+    """The mean (speckle-averaged) line of a footprint as echoes on the chirp's resolution grid:
+    (delay offsets (m, J), powers (m, J)), J cells per shot (unused cells padded with power 0).
+
+    A diffuse footprint's mean beat spectrum is sum_k w_k |T(f - kappa tau_k)|^2 (each sub-ray's
+    line, weighted by its power share: the speckle phases average the cross terms away). Tones
+    spaced by one resolution cell, delta = 1 / (kappa T_ov) (T_ov the equivalent rectangular
+    overlap of one chirp), are orthogonal over the record, so echoes at tau_bar + j delta with
+    powers W_j = sum_k w_k sinc^2((tau_k - tau_bar) / delta - j) draw that line exactly at the
+    grid's frequencies, whatever their carrier or RF phases, with sum_j W_j = 1 (the sinc^2
+    shifts sum to 1). tau_bar is the power-weighted mean delay: a footprint the chirp does not
+    resolve is one echo there of the whole power (W_0 -> 1); a resolved one spreads over the
+    cells in proportion to its power-weighted delays. ``share`` (m, k): power shares (sum 1),
+    ``dtau_s`` (m, k) delay offsets.
+    """
+    w = np.asarray(share, float)
+    d = np.asarray(dtau_s, float)
+    m = w.shape[0]
+    _, _, t_ov = _overlap(config, bud)
+    band = bud.train.rate_hz_per_s * t_ov
+    tbar = np.sum(w * d, axis=-1, keepdims=True)                       # (m, 1)
+    if band <= 0 or m == 0:
+        return tbar, np.ones((m, 1))
+    delta = 1.0 / band
+    x = np.where(w > 0, (d - tbar) / delta, 0.0)
+    lo = np.floor(x.min(axis=-1)).astype(int) - _CELL_MARGIN
+    hi = np.ceil(x.max(axis=-1)).astype(int) + _CELL_MARGIN
+    j = lo[:, None] + np.arange(int(np.max(hi - lo)) + 1)                  # (m, J): per shot
+    cells = np.einsum("mk,mkj->mj", w, np.sinc(x[..., None] - j[:, None, :]) ** 2)
+    cells = np.where(cells >= _CELL_FLOOR * cells.max(axis=-1, keepdims=True), cells, 0.0)
+    # Each shot's cells in use first (a footprint split between two surfaces skips the gap).
+    order = np.argsort(cells <= 0, axis=-1, kind="stable")
+    cells = np.take_along_axis(cells, order, axis=-1)
+    j = np.take_along_axis(j, order, axis=-1)
+    used = np.any(cells > 0, axis=0)
+    return tbar + j[:, used] * delta, cells[:, used]
+
+
+def footprint_echoes(config, bud, frac, dtau_s, fields=None, sign=-1.0):
+    """A footprint's sub-rays as tier echoes: (delay_offset_s (m, J), power_weight (m, J),
+    phase_rad (m, J), gain (m,)).
+
+    The tiers sum the echoes as sum_j sqrt(u_j) exp(sign j phi_j) x (the signal delayed by the
+    echo's offset), with the weights u normalised to sum 1 per shot, and scale the shot's received
+    power by its power factor; ``gain`` is the factor to multiply that power factor with.
+    ``frac`` (m, k): the sub-rays' received power shares w_k (unnormalised, each shot with one
+    > 0); ``dtau_s`` (m, k) their delay offsets; ``bud``: the instrument at the shots' range;
+    ``sign``: -1 for the baseband tier's exp(-j phi), +1 for the rf tier's exp(+j phi).
+
+    Sub-rays sample the footprint; they are not scatterers, so their optical path differences
+    (2 k0 (R_k - R_l): thousands of wavelengths) must not interfere:
+
+    * ``fields`` (m, k) complex (speckle on, :func:`subray_speckle_fields`): each sub-ray's patch
+      returns the field sqrt(w_k) z_k at its own delay. Echo weights w_k |z_k|^2, phases from
+      arg z_k, gain sum_k w_k |z_k|^2 / sum_k w_k: an unresolved footprint's power is
+      |sum_k sqrt(w_k) z_k|^2 (exponential of mean 1 for M = 1, circular Gaussian fields), a
+      resolved one's lines carry w_k |z_k|^2; the mean spectrum is the power-weighted one.
+    * no fields (speckle off): the mean return, deterministically, with one common phase: the
+      resolution-cell echoes of :func:`footprint_cells` (one echo of the whole power at the
+      power-weighted mean delay when the chirp does not resolve the footprint). ``gain`` =
+      sum a_j^2 / :func:`footprint_coherence` (a_j = sqrt(W_j) / sum sqrt(W)) keeps the record's
+      beat energy at the mean power's (about 1; it absorbs the window's taper and the truncated
+      sinc^2 tails), so the footprint returns its mean power and a spread footprint broadens the
+      line without interference gain or loss.
+    """
+    w = np.asarray(frac, float)
+    tot = w.sum(axis=-1, keepdims=True)
+    share = w / np.where(tot > 0, tot, 1.0)
+    if fields is not None:
+        z = np.asarray(fields)
+        pw = share * (z.real ** 2 + z.imag ** 2)
+        return np.asarray(dtau_s, float), pw, sign * np.angle(z), pw.sum(axis=-1)
+    delays, cells = footprint_cells(config, bud, share, dtau_s)
+    a = np.sqrt(cells)
+    a = a / a.sum(axis=-1, keepdims=True)
+    coh = footprint_coherence(config, bud, a, delays)
+    return delays, cells, np.zeros_like(cells), np.sum(a * a, axis=-1) / np.maximum(coh, 1e-300)
 
 
 def _equivalent_cn2(config, scene, geom, r_med: float) -> float:
@@ -219,12 +429,17 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool):
 def received_power(config, scene, geom, seq, *, exclude_effects=("doppler",)):
     """Per shot-beam: (P_sig [W], power-weighted mean range [m], range std [m], sub-ray power
     fractions (n, b, k) after transmission and effects)."""
+    return _received(config, scene, geom, seq, exclude_effects)[:4]
+
+
+def _received(config, scene, geom, seq, exclude_effects=("doppler",)):
+    """:func:`received_power` and the effects' (n, b) carrier phase [rad] (speckle)."""
     bud = make_budget(config)
     frac = sub_ray_power_fractions(config, scene, geom)
-    scale = _transmission(config, scene, geom) * _effects(config, scene, geom, seq,
-                                                          exclude=exclude_effects)
+    power, phase = _effect_returns(config, scene, geom, seq, exclude=exclude_effects)
+    scale = _transmission(config, scene, geom) * power
     mean, std, tot = weighted_range_stats(frac, geom.sub_range_m)
-    return bud.ptx_w * tot * scale, mean, std, frac * scale[..., None]
+    return bud.ptx_w * tot * scale, mean, std, frac * scale[..., None], phase
 
 
 def doppler_hz(config, scene, geom):
@@ -238,7 +453,7 @@ def measure_link(config, scene, geom, seq) -> dict:
     if config.system.modulation != "fm_chirp":
         raise ValueError("survey runs model FM chirps (system.modulation = 'fm_chirp')")
     bud = make_budget(config)
-    psig, r_mean, r_std, _ = received_power(config, scene, geom, seq)
+    psig, r_mean, r_std, _, eff_phase = _received(config, scene, geom, seq)
     n_grp = config.channel.group_index
     rate = bud.rate_hz_per_s
     ok = np.isfinite(r_mean) & (psig > 0)
@@ -254,15 +469,26 @@ def measure_link(config, scene, geom, seq) -> dict:
     if np.any(ok):
         h = psig[ok] / bud.ptx_w
         att = 10.0 * np.log10(reference_power_fraction(config, r_mean[ok]) / h)
+        # Nodes at the mean phase power ("random") or at the optimum phase (the static phases:
+        # each shot's own phase below; the node's own propagation phase would be arbitrary).
+        cp = config.channel.carrier_phase
+        node_cfg = config if cp == "random" else config_with(config, {
+            "channel.carrier_phase": "optimal"})
         r_nodes, a_nodes, table, t_nodes, split = _link_table(
-            config, float(r_mean[ok].min()), float(r_mean[ok].max()), float(att.min()),
+            node_cfg, float(r_mean[ok].min()), float(r_mean[ok].max()), float(att.min()),
             float(att.max()), "doppler" in scene.effects)
         snr_ok = db_to_ratio(_interp_table(r_nodes, a_nodes, table, r_mean[ok], att))
         t_ov = np.interp(r_mean[ok], r_nodes, t_nodes)
         f_d = doppler_hz(config, scene, geom)[ok]
         resolved = np.abs(f_d) >= 1.0 / t_ov
-        # Carrier fading about the nodes' mean phase power; a resolved Doppler split replaces it.
-        fade = carrier_fading_factor(config, stream(seq, STREAM_FADING), snr_ok.size)
+        # Carrier fading about the nodes' mean phase power, or each shot's static phase (with the
+        # speckle field's phase, when that effect is on) about the optimum; a resolved Doppler
+        # split replaces it.
+        if cp == "random":
+            fade = carrier_fading_factor(config, stream(seq, STREAM_FADING), snr_ok.size)
+        else:
+            fade = static_phase_factor(config, _static_phase(config, bud, delay[ok], ref[ok])
+                                       + eff_phase[ok])
         snr_ok = np.where(resolved, snr_ok * split, snr_ok * fade)
         # Footprint spread: a broadened line of width ratio g (module docstring).
         sigma_f = rate * 2.0 * n_grp * r_std[ok] / SPEED_OF_LIGHT_M_S
@@ -278,6 +504,17 @@ def measure_link(config, scene, geom, seq) -> dict:
         range_meas[ok] = SPEED_OF_LIGHT_M_S * (fm / rate + ref[ok]) / (2.0 * n_grp)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band)
+
+
+def _static_phase(config, bud, delay_s, ref_delay_s) -> np.ndarray:
+    """Per-shot static carrier phase [rad] of ``channel.carrier_phase`` = "optimal" (the
+    receiver's optimum) or "propagation" (-2 pi nu (tau - tau_ref) of each shot's own mean delay:
+    a moving platform's range changes by many wavelengths from shot to shot)."""
+    delay_s = np.asarray(delay_s, float)
+    if config.channel.carrier_phase == "propagation":
+        return -2 * np.pi * np.mod(bud.nu_hz * (delay_s - ref_delay_s), 1.0)
+    mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
+    return np.full(delay_s.shape, optimal_phase(mode))
 
 
 def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
@@ -300,16 +537,18 @@ def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
 
 def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     """rf-tier measurements: each shot-beam is simulated at full rate, its footprint's sub-rays
-    summed coherently as delayed echoes (``tiers.rf`` ``echoes``): a sloped or rough footprint
-    broadens the beat peak. With ``speckle`` enabled the echoes carry independent uniform phases
-    (each sub-ray's patch is an independent scatterer: their sum is the speckle, so the speckle
-    effect's own gamma draw is not applied); otherwise the propagation phase -2 pi nu dtau."""
+    summed as delayed echoes (``tiers.rf`` ``echoes``, see :func:`footprint_echoes`): a sloped or
+    rough footprint broadens the beat peak. With ``speckle`` enabled each sub-ray carries its own
+    speckle field (:func:`subray_speckle_fields`: their sum is the footprint's speckle, so the
+    speckle effect's per-shot draw is not applied); otherwise the footprint returns its mean power
+    with one common carrier phase (no interference between the sub-ray samples)."""
     from ..tiers.echoes import Echoes
     from ..tiers.rf import simulate_rf
 
     bud = make_budget(config)
     psig, r_mean, _, frac = received_power(config, scene, geom, seq,
                                            exclude_effects=("doppler", "speckle"))
+    fields = subray_speckle_fields(config, scene, geom, seq)
     n, b = psig.shape
     ok = np.isfinite(r_mean) & (psig > 0)
     lw = config.laser.linewidth_hz > 0
@@ -321,24 +560,25 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     width = np.full((n, b), np.nan)
     no_overlap = np.zeros((n, b), bool)
     out_of_band = np.zeros((n, b), bool)
-    nu = SPEED_OF_LIGHT_M_S / config.laser.wavelength_m
     n_grp = config.channel.group_index
-    speckle = "speckle" in scene.effects
     for flat in np.flatnonzero(ok.ravel()):  # the rf tier is the reference: one shot at a time
         i, j = divmod(int(flat), b)
         r0 = float(r_mean[i, j])
-        att = float(10 * np.log10(reference_power_fraction(config, r0) * bud.ptx_w / psig[i, j]))
-        over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
+        over = {"channel.distance_m": r0}
         if "doppler" in enabled:
             over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
-        cfg = config_with(base, over)
-        rng = stream(seq, STREAM_RF + int(flat))
+        cfg0 = config_with(base, over)
         w = frac[i, j]
         keep = w > 0
         dtau = 2.0 * n_grp * (geom.sub_range_m[i, j][keep] - r0) / SPEED_OF_LIGHT_M_S
-        phase = (rng.uniform(0.0, 2 * np.pi, dtau.size) if speckle
-                 else -2 * np.pi * np.mod(nu * dtau, 1.0))
-        out = simulate_rf(cfg, rng, batch=1, echoes=Echoes(dtau, w[keep], phase))
+        offs, pw, phase, gain = footprint_echoes(
+            cfg0, make_budget(cfg0), w[keep][None], dtau[None],
+            None if fields is None else fields[i, j][keep][None], sign=1.0)
+        att = float(10 * np.log10(reference_power_fraction(config, r0) * bud.ptx_w
+                                  / (psig[i, j] * gain[0])))
+        cfg = config_with(cfg0, {"channel.extra_attenuation_db": att})
+        rng = stream(seq, STREAM_RF + int(flat))
+        out = simulate_rf(cfg, rng, batch=1, echoes=Echoes(offs[0], pw[0], phase[0]))
         snr[i, j] = float(db_to_ratio(out["SNR"][0]))
         f_meas[i, j] = out["f_beat_hz"][0]
         range_meas[i, j] = out["d_rx"][0]
@@ -353,21 +593,29 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
 
 def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
     """Baseband-tier measurements of a chunk, in batches of shots: each shot's footprint sub-rays
-    become echoes (as in :func:`measure_rf`), its received power and Doppler per-shot returns.
+    become echoes (:func:`footprint_echoes`, as in :func:`measure_rf`), its received power,
+    carrier phase and Doppler per-shot returns.
 
     Shots are sorted by range and batched; a batch shares one instrument configuration aimed at
     its median range, so the ``sys.fmaxopt`` range gate (when ``system.reference_delay_s`` is
     unset) is set per batch of at most BASEBAND_BATCH neighbouring ranges, not per shot; each
-    shot's own delay enters exactly as its echoes' offsets from that range.
+    shot's own delay enters exactly as its echoes' offsets from that range, and with
+    ``channel.carrier_phase = "propagation"`` each shot takes the propagation phase of its own
+    power-weighted mean delay (the batch's phase would be shared by all its shots).
     """
     from ..channel.effects import ShotReturns
-    from ..tiers.baseband import band_top_hz_or_nyquist, baseband_grid, simulate_baseband
+    from ..tiers.baseband import (
+        band_top_hz_or_nyquist,
+        baseband_grid,
+        simulate_baseband,
+    )
     from ..tiers.echoes import Echoes
 
     bud = make_budget(config)
     band_top = band_top_hz_or_nyquist(config, bud, baseband_grid(config, bud)[0])
     psig, r_mean, _, frac = received_power(config, scene, geom, seq,
                                            exclude_effects=("doppler", "speckle"))
+    fields = subray_speckle_fields(config, scene, geom, seq)
     n, b = psig.shape
     ok = np.isfinite(r_mean) & (psig > 0)
     lw = config.laser.linewidth_hz > 0
@@ -376,9 +624,8 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
     f_meas, range_meas, width = (np.full((n, b), np.nan) for _ in range(3))
     no_overlap = np.zeros((n, b), bool)
     out_of_band = np.zeros((n, b), bool)
-    nu = SPEED_OF_LIGHT_M_S / config.laser.wavelength_m
     n_grp = config.channel.group_index
-    speckle = "speckle" in scene.effects
+    propagation = config.channel.carrier_phase == "propagation"
     f_d_all = doppler_hz(config, scene, geom)
     flat = np.flatnonzero(ok.ravel())
     flat = flat[np.argsort(r_mean.ravel()[flat], kind="stable")]
@@ -391,18 +638,24 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         rng = stream(seq, STREAM_BASEBAND + batch_index)
         w = frac[ii, jj]                                                  # (m, k)
         dtau = 2.0 * n_grp * (np.where(w > 0, geom.sub_range_m[ii, jj], r0) - r0) / SPEED_OF_LIGHT_M_S
-        phase = (rng.uniform(0.0, 2 * np.pi, dtau.shape) if speckle
-                 else -2 * np.pi * np.mod(nu * dtau, 1.0))
-        per_shot = ShotReturns(power_factor=psig[ii, jj] / bud_batch.psig_w, phase_rad=np.zeros(idx.size),
-                               doppler_hz=f_d_all[ii, jj])
-        out = simulate_baseband(cfg, rng, batch=idx.size, echoes=Echoes(dtau, w, phase),
+        offs, pw, phase, gain = footprint_echoes(cfg, bud_batch, w, dtau,
+                                                 None if fields is None else fields[ii, jj])
+        delay = 2.0 * n_grp * r_mean[ii, jj] / SPEED_OF_LIGHT_M_S
+        shot_phase = np.zeros(idx.size)
+        if propagation:
+            # The tier applies the batch's propagation phase; each shot's is its own delay's.
+            shot_phase = (_static_phase(config, bud_batch, delay, bud_batch.ref_delay_s)
+                          - _static_phase(config, bud_batch, bud_batch.delay_s,
+                                          bud_batch.ref_delay_s))
+        per_shot = ShotReturns(power_factor=psig[ii, jj] / bud_batch.psig_w * gain,
+                               phase_rad=shot_phase, doppler_hz=f_d_all[ii, jj])
+        out = simulate_baseband(cfg, rng, batch=idx.size, echoes=Echoes(offs, pw, phase),
                                 shot_returns=per_shot)
         snr[ii, jj] = db_to_ratio(out["SNR"])
         f_meas[ii, jj] = out["f_beat_hz"]
         range_meas[ii, jj] = out["d_rx"]
         width[ii, jj] = out["d_3dB"] * 2.0 * n_grp * bud.rate_hz_per_s / SPEED_OF_LIGHT_M_S
         # Per-shot flags from each shot's own lag (the tier's flags describe the batch's centre).
-        delay = 2.0 * n_grp * r_mean[ii, jj] / SPEED_OF_LIGHT_M_S
         lag = np.mod(delay - bud_batch.ref_delay_s, bud.train.period_s)
         f_b = bud.rate_hz_per_s * lag
         no_overlap[ii, jj], out_of_band[ii, jj] = beat_flags(cfg, bud, lag, f_b)

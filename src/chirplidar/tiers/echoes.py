@@ -1,9 +1,9 @@
 """Sub-returns of a beam footprint for the rf tier (sloped or rough terrain).
 
 A beam on real terrain spans a range of distances: the mission runner casts sub-rays over the
-beam's divergence and hands the rf tier, per shot, each sub-ray's extra round-trip delay, power
-share and carrier phase. The rf tier then sums the delayed echoes coherently, so the beat peak
-spreads over kappa x (the footprint's delay spread).
+beam's divergence and hands the rf and baseband tiers, per shot, echoes built from them (extra
+round-trip delay, power share and carrier phase of each). The tiers then sum the delayed echoes
+coherently, so the beat peak spreads over kappa x (the footprint's delay spread).
 """
 
 from __future__ import annotations
@@ -24,9 +24,15 @@ class Echoes:
     power_weight:   (batch, k) or (k,) share of the received power in each echo (>= 0; normalised
         to sum 1 per shot by the rf tier)
     phase_rad:      (batch, k) or (k,) carrier phase of each echo (rad), added to the shot's own
-        carrier phase (channel.carrier_phase, speckle, Doppler, laser phase noise). For a diffuse
-        surface the caller passes independent uniform phases (each sub-ray's patch is an
-        independent scatterer); for a smooth surface the propagation phase -2 pi nu dtau.
+        carrier phase (channel.carrier_phase, speckle, Doppler, laser phase noise).
+
+    The tiers sum the echoes coherently, with amplitudes sqrt(w_k) (w normalised) and their phases:
+    echoes are fields, not powers. Footprint samples are not scatterers, so a caller must not
+    give them their optical propagation phases 2 pi nu dtau_k (the samples would interfere:
+    anything from 0 to (sum_k sqrt(w_k))^2 times the power). The survey runs
+    (``mission.measure.footprint_echoes``) pass each sub-ray's speckle field for a diffuse
+    surface (weight w_k |z_k|^2, phase arg z_k), and otherwise the mean line's resolution-cell
+    echoes with one common phase; both keep the footprint's mean power.
 
     A (k,) array is shared by every shot of the batch. A single echo of offset 0, weight 1 and
     phase 0 is the echo-free shot. Arrays are stored as read-only float64.

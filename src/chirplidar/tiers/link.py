@@ -12,7 +12,9 @@ Carrier phase ``random``: :func:`simulate_link` uses the mean over a uniform pha
 optimum-phase power; its SNR is the mean SNR that sweeps and sensitivity curves need). The per-shot
 fading about that mean (thesis eq. 3.3.12, Sec. 5 field trial, Appendix D), after the record's
 averaging, is :func:`carrier_fading_factor`; survey runs (``mission.measure.measure_link``) apply it
-shot by shot, as the rf and baseband tiers draw the phase per record.
+shot by shot, as the rf and baseband tiers draw the phase per record. For the static phases
+("optimal", "propagation", plus a speckle phase) they apply :func:`static_phase_factor` of each
+shot's own phase to the optimum-phase SNR.
 """
 
 from __future__ import annotations
@@ -106,6 +108,34 @@ def carrier_fading_factor(config, rng: np.random.Generator, n: int) -> np.ndarra
     resp = responsivities(config, bud.nu_hz)
     w1, w2 = resp["balanced_1"] ** 2, resp["balanced_2"] ** 2
     return (w1 * p1 + w2 * p2) / (0.5 * (w1 + w2))
+
+
+def static_phase_factor(config, psi_rad) -> np.ndarray:
+    """SNR at a static carrier phase ``psi_rad`` (signal relative to the LO, rad; array) over the
+    SNR at :func:`~chirplidar.tiers.common.optimal_phase`, as :func:`simulate_link` weighs it.
+
+    * balanced pair (homodyne): i1 - i2 = 2 R Im(E_LO E_s*), the beat power goes as sin^2 psi
+      (thesis eq. 3.3.12), so the factor is sin^2 psi;
+    * phase diversity: arm 1 reads cos^2(psi - a), arm 2 sin^2(psi - a), a = arg(S00 S01*), and
+      the arms' spectra are summed: (r1^2 cos^2(psi - a) + r2^2 sin^2(psi - a)) / r1^2;
+    * direct and heterodyne detection: 1 (they do not depend on the optical phase).
+
+    Survey runs use it shot by shot (``mission.measure.measure_link``) for the optimum and
+    propagation phases, with a speckle phase added when that effect is on; its mean over a uniform
+    psi is the ``random`` setting's mean phase power relative to the optimum (1/2 for homodyne).
+    """
+    psi = np.asarray(psi_rad, float)
+    sysc = config.system
+    if sysc.receiver != "coherent" or sysc.coherent_mode not in ("homodyne", "phase_diversity"):
+        return np.ones(psi.shape)
+    if sysc.coherent_mode == "homodyne":
+        return np.sin(psi) ** 2
+    a = np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))
+    bud = make_budget(config)
+    resp = responsivities(config, bud.nu_hz)
+    w1, w2 = resp["balanced_1"] ** 2, resp["balanced_2"] ** 2
+    p1 = np.cos(psi - a) ** 2
+    return (w1 * p1 + w2 * (1.0 - p1)) / w1
 
 
 def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
