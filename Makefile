@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo thesis-demo test bench clean
+.PHONY: install demo thesis-demo test test-slow bench clean
 
 install: $(STAMP)
 
@@ -25,6 +25,10 @@ thesis-demo: install
 
 test: install
 	$(BIN)/python -m pytest -q
+
+# The slow validations (e.g. baseband range RMS within 10 % of rf with 400 shots per point).
+test-slow: install
+	$(BIN)/python -m pytest -q -m slow
 
 bench: install
 	$(BIN)/chirplidar bench --what shot

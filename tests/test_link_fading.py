@@ -24,9 +24,9 @@ from chirplidar.config.loader import config_with
 from chirplidar.mission.measure import _node_config
 from chirplidar.tiers.baseband import simulate_baseband
 from chirplidar.tiers.link import carrier_fading_factor, simulate_link
+from conftest import FIELD, write_flat_uav_mission
 
-ROOT = Path(__file__).resolve().parents[1]
-FIELD = ROOT / "missions" / "thesis_field_instrument.toml"   # carrier_phase = "random"
+# FIELD (conftest): missions/thesis_field_instrument.toml, carrier_phase = "random"
 
 
 def _field(*overrides):
@@ -85,57 +85,8 @@ def test_link_fading_matches_baseband_detection_at_threshold():
 
 
 def _flat_survey(tmp: Path) -> Path:
-    scene = tmp / "flat.toml"
-    scene.write_text("""
-name = "flat"
-epsg = 3413
-effects = []
-[terrain]
-source = "flat"
-center_lat_deg = 69.0
-center_lon_deg = -49.0
-size_x_m = 4000.0
-size_y_m = 4000.0
-resolution_m = 50.0
-[terrain.flat]
-height_m = 100.0
-material = "snow"
-[atmosphere]
-cn2_profile = "none"
-extinction_per_m = 0.0
-scale_height_m = 1200.0
-""")
-    mission = tmp / "m.toml"
-    mission.write_text(f"""
-extends = "{FIELD}"
-seed = 5
-[scene]
-file = "flat.toml"
-[platform]
-kind = "uav"
-[platform.uav]
-coordinates = "scene_centre"
-waypoints_m = [[-800.0, 0.0], [800.0, 0.0]]
-speed_mps = 20.0
-altitude_m = 220.0
-altitude_mode = "absolute"
-[attitude]
-roll_deg = 0.0
-pitch_deg = 0.0
-yaw_deg = 0.0
-jitter_rad_rms = 0.0
-[beams]
-pattern = "nadir"
-[survey]
-tier = "link"
-prf_hz = 100.0
-start_s = 0.0
-stop_s = 20.0
-epoch_utc = "2026-07-01T00:00:00Z"
-detection_threshold_db = 10.0
-subrays_per_beam = 7
-""")
-    return mission
+    return write_flat_uav_mission(tmp, "flat", altitude_m=220.0, beams='pattern = "nadir"',
+                                  prf=100.0, stop=20.0, subrays=7)
 
 
 def test_survey_link_tier_fades_one_record_shots(tmp_path):

@@ -36,9 +36,9 @@ from chirplidar.tiers.budget import make_budget
 from chirplidar.tiers.echoes import Echoes
 from chirplidar.tiers.link import simulate_link, static_phase_factor
 from chirplidar.units import SPEED_OF_LIGHT_M_S
+from conftest import FIELD, FLAT_SNOW, write_flat_uav_mission
 
-ROOT = Path(__file__).resolve().parents[1]
-FIELD = ROOT / "missions" / "thesis_field_instrument.toml"   # 1 speckle cell, K = 94, random
+# FIELD: missions/thesis_field_instrument.toml (1 speckle cell, K = 94, random carrier phase)
 TWO_BEAMS = 'pattern = "custom"\noff_nadir_deg = [0.0, 20.0]\nazimuth_deg = [90.0, 90.0]'
 # 300 m range: a 10 MHz beat, so a 20 MHz band (a short baseband record) holds it; -20 dB of
 # attenuation gives ~45 dB of optimum-phase SNR: deep fades stay far above the noise.
@@ -49,57 +49,13 @@ ARCSINE = 2 / np.pi * np.arcsin(np.sqrt(0.05))   # P(sin^2 psi < 0.05): 0.1436
 
 
 def _survey(tmp: Path, name: str, *, effects="[]", beams=TWO_BEAMS, stop=5.0, prf=20.0,
-            terrain='source = "flat"\n[terrain.flat]\nheight_m = 100.0\nmaterial = "snow"',
+            terrain=FLAT_SNOW,
             overrides=(), subrays=7):
     """(config, scene, geometry, seeds) of the first chunk of a UAV line 400 m above a flat
     snow plane (range 300 m at nadir)."""
-    (tmp / f"{name}_scene.toml").write_text(f"""
-name = "{name}"
-epsg = 3413
-effects = {effects}
-[terrain]
-{terrain.split(chr(10))[0]}
-center_lat_deg = 69.0
-center_lon_deg = -49.0
-size_x_m = 4000.0
-size_y_m = 4000.0
-resolution_m = 50.0
-{chr(10).join(terrain.split(chr(10))[1:])}
-[atmosphere]
-cn2_profile = "none"
-extinction_per_m = 0.0
-scale_height_m = 1200.0
-""")
-    mission = tmp / f"{name}.toml"
-    mission.write_text(f"""
-extends = "{FIELD}"
-seed = 5
-[scene]
-file = "{name}_scene.toml"
-[platform]
-kind = "uav"
-[platform.uav]
-coordinates = "scene_centre"
-waypoints_m = [[-800.0, 0.0], [800.0, 0.0]]
-speed_mps = 20.0
-altitude_m = 400.0
-altitude_mode = "absolute"
-[attitude]
-roll_deg = 0.0
-pitch_deg = 0.0
-yaw_deg = 0.0
-jitter_rad_rms = 0.0
-[beams]
-{beams}
-[survey]
-tier = "link"
-prf_hz = {prf}
-start_s = 0.0
-stop_s = {stop}
-epoch_utc = "2026-07-01T00:00:00Z"
-detection_threshold_db = 10.0
-subrays_per_beam = {subrays}
-""")
+    mission = write_flat_uav_mission(tmp, name, altitude_m=400.0, beams=beams, prf=prf,
+                                     stop=stop, subrays=subrays, effects=effects,
+                                     terrain=terrain)
     config, scene, plan = prepare(mission, overrides=[*FAST, *overrides],
                                   cache_dir=tmp / "cache")
     seq = chunk_seeds(config.seed, plan.n_chunks)[0]
