@@ -203,7 +203,7 @@ def test_fallback_without_embree_warns_once_and_agrees(monkeypatch, plane):
     d = np.array([_dir(0.0), _dir(0.2, 1.0), [0.0, 0.0, 1.0]])
     ref = cast_rays(plane, o, d)
     small = flat_plane(H, (-1000.0, 1000.0, -1000.0, 1000.0), 50.0, "snow")  # fresh cache
-    monkeypatch.setattr(raycast, "_ray_pyembree", None)
+    monkeypatch.setattr(raycast, "_embree", None)
     monkeypatch.setattr(raycast, "_fallback_warned", False)
     try:
         import rtree  # noqa: F401  (trimesh's ray_triangle needs it)

@@ -184,6 +184,70 @@ def test_chunk_merge_equals_one_go(tmp_path):
         cw.merge(tmp_path / "final.nc")
 
 
+def _file_header(path):
+    """Dimensions, variables (dtype, dims, filters, chunking, attributes), global attributes."""
+    import netCDF4
+
+    with netCDF4.Dataset(path) as d:
+        out = [("dims", [(k, len(v)) for k, v in d.dimensions.items()]),
+               ("attrs", [(k, repr(d.getncattr(k))) for k in d.ncattrs()])]
+        for name, v in d.variables.items():
+            out.append((name, str(v.dtype), v.dimensions, v.filters(), v.chunking(),
+                        [(k, repr(v.getncattr(k))) for k in v.ncattrs()]))
+    return out
+
+
+def test_incremental_merge_in_any_completion_order(tmp_path):
+    """Chunks appended as they appear (out of order: each waits for the ones before it) give
+    write_netcdf's file of the whole dataset with the same HDF5 chunking (a chunk of obs per
+    HDF5 chunk); merge_to_file gives the same file."""
+    full = _per_shot(n_shots=29)
+    ds = _build(full)
+    cw = ChunkWriter(tmp_path / "chunks")
+    bounds = [(0, 10), (10, 20), (20, 29)]
+    merge = cw.start_merge(tmp_path / "inc.nc", [b - a for a, b in bounds], obs_chunk=10)
+    assert merge.append_ready() == 0                    # nothing yet
+    for i in (2, 1):                                    # chunk 0 last: nothing can be appended
+        a, b = bounds[i]
+        cw.write(i, _build({k: v[:, a:b] for k, v in full.items()}), compress=False)
+        assert merge.append_ready() == 0 and not (tmp_path / "inc.nc").exists()
+    cw.write(0, _build({k: v[:, :10] for k, v in full.items()}), compress=False)
+    assert merge.append_ready() == 3
+    assert merge.finish() == tmp_path / "inc.nc"
+    write_netcdf(ds, tmp_path / "whole.nc", obs_chunk=10)
+    cw.merge_to_file(tmp_path / "merged.nc", obs_chunk=10)
+    for p in ("inc.nc", "merged.nc"):
+        xr.testing.assert_identical(read_netcdf(tmp_path / p), ds)
+        assert _file_header(tmp_path / p) == _file_header(tmp_path / "whole.nc")
+    import netCDF4
+
+    with netCDF4.Dataset(tmp_path / "inc.nc") as d:
+        assert d["range_true"].chunking() == [3, 10]
+        assert d["detected"].chunking() == "contiguous"
+    assert sorted(os.listdir(tmp_path)) == ["chunks", "inc.nc", "merged.nc", "whole.nc"]
+
+
+def test_incremental_merge_errors_leave_nothing(tmp_path):
+    full = _per_shot(n_shots=20)
+    cw = ChunkWriter(tmp_path / "chunks")
+    cw.write(0, _build({k: v[:, :10] for k, v in full.items()}))
+    with pytest.raises(ValueError, match=r"missing.*\[1\]"), \
+            cw.start_merge(tmp_path / "a.nc", [10, 10]) as merge:
+        merge.finish()
+    with pytest.raises(ValueError, match="chunk 0 .*10 observations, expected 12"), \
+            cw.start_merge(tmp_path / "b.nc", [12, 8]) as merge:
+        merge.append_ready()
+    cw.write(1, _build({k: v[:, 10:] for k, v in full.items()}, seed=7))
+    with pytest.raises(ValueError, match=r"chunk 1 .*global attributes \[.*'seed'\] differ"), \
+            cw.start_merge(tmp_path / "c.nc", [10, 10]) as merge:
+        merge.finish()
+    with pytest.raises(ValueError, match="obs_chunk"):
+        cw.start_merge(tmp_path / "d.nc", [10, 10], obs_chunk=0)
+    with pytest.raises(ValueError, match="obs_chunk"):
+        write_netcdf(_build(), tmp_path / "e.nc", obs_chunk=2.5)
+    assert sorted(os.listdir(tmp_path)) == ["chunks"]   # no results file, no temp file
+
+
 def test_chunk_merge_missing_chunk(tmp_path):
     cw = ChunkWriter(tmp_path)
     cw.write(0, _build())

@@ -96,7 +96,7 @@ def _in_memory_run(mission, out, cache):
     ds.attrs.update({"tier": sv.tier, "mission_file": str(Path(mission)),
                      "scene_file": str(scene.path), "scene_configuration": scene.text,
                      "platform": config.platform.kind, "beam_pattern": config.beams.pattern})
-    write_netcdf(ds, out)
+    write_netcdf(ds, out, obs_chunk=plan.chunk_shots)   # a run's file: HDF5 chunks of a chunk
     return ds
 
 
@@ -317,9 +317,11 @@ def test_existing_chunk_dir_needs_resume_or_overwrite(small, tmp_path, capsys):
     # --resume: chunk files without a manifest cannot be matched to the run
     with pytest.raises(ConfigError, match=rf"{re.escape(str(stale))}: chunk files without a manifest\.json"):
         run_mission(mission, out=out, cache_dir=cache, resume=True)
-    # --overwrite discards them and runs
+    # --overwrite discards them (and the temp results file of that run) and runs
+    (tmp_path / ".x.nc.killed.tmp").write_bytes(b"CDF partial")
     res = run_mission(mission, out=out, cache_dir=cache, overwrite=True, date_created=DATE)
     _identical_files(res.path, serial.path)
+    assert sorted(os.listdir(tmp_path)) == ["x.nc"]
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -4,7 +4,9 @@ Sources of terrain:
 
 * ``Terrain.from_mesh_file``: OBJ / STL / PLY / GLB through trimesh, one material for all faces;
 * ``Terrain.from_heightfield``: a regular grid (two triangles per cell, vectorised); NaN heights
-  (DEM no-data) leave their cells out, counted in ``Terrain.holes``;
+  (DEM no-data) leave their cells out, counted in ``Terrain.holes``. The terrain keeps its grid
+  (:class:`HeightGrid`): heights below a point are read off the grid's triangles directly, and
+  ray casting builds its acceleration structure for the cells its rays can reach only;
 * ``Terrain.from_dem``: a GeoTIFF (or any raster rasterio reads) via the optional ``dem`` extra;
 * ``synthetic_ice_sheet``: a Vialov flow-line profile with crevasses, sastrugi, melt ponds and rock
   outcrops, all seeded by a ``numpy.random.Generator``;
@@ -16,6 +18,7 @@ Materials are integer codes into ``Terrain.material_names``; the default table i
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass, field
 
@@ -52,29 +55,184 @@ def material_name(code: int) -> str:
 
 
 @dataclass(frozen=True, eq=False)
+class HeightGrid:
+    """The regular grid of a heightfield terrain, axes increasing (as its mesh is built).
+
+    x_m (nx,), y_m (ny,): strictly increasing node coordinates (m); z_m (ny, nx): node heights
+    (m), NaN for no-data; cell_face (ny-1, nx-1): index in the terrain's mesh of the first of
+    the cell's two triangles (the second is the next one), -1 for a cell left out (hole).
+    Cell (j, i) spans x_m[i]..x_m[i+1], y_m[j]..y_m[j+1]; with v_ab the node (j+b, i+a) its
+    triangles are (v00, v10, v11) -- the half below the diagonal v00-v11, u >= v in the cell's
+    unit coordinates -- and (v00, v11, v01), the half above it.
+    """
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_m: np.ndarray
+    cell_face: np.ndarray
+
+    def __post_init__(self):
+        ny, nx = self.y_m.size, self.x_m.size
+        if self.z_m.shape != (ny, nx) or self.cell_face.shape != (ny - 1, nx - 1):
+            raise ValueError(f"HeightGrid: z_m must be ({ny}, {nx}) and cell_face "
+                             f"({ny - 1}, {nx - 1}), got {self.z_m.shape}, "
+                             f"{self.cell_face.shape}")
+        for a in (self.x_m, self.y_m, self.z_m, self.cell_face):
+            a.setflags(write=False)
+
+    def surface_height_m(self, x_m, y_m) -> np.ndarray:
+        """Height (m) of the grid's triangles at points (x_m, y_m) (broadcast): the plane of
+        the triangle that holds the point, evaluated directly (no ray casting).
+
+        Points on a cell's edge or corner take a neighbouring cell when theirs is a hole, so
+        the closed triangles count (as for a ray that grazes an edge). NaN outside the grid,
+        inside holes and where x or y is not finite.
+        """
+        x, y = np.broadcast_arrays(np.asarray(x_m, dtype=np.float64),
+                                   np.asarray(y_m, dtype=np.float64))
+        gx, gy, z, cf = self.x_m, self.y_m, self.z_m, self.cell_face
+        out = np.full(x.shape, np.nan)
+        inside = (x >= gx[0]) & (x <= gx[-1]) & (y >= gy[0]) & (y <= gy[-1])  # False for NaN
+        if not inside.any():
+            return out
+        px, py = x[inside], y[inside]
+        i = np.clip(np.searchsorted(gx, px, side="right") - 1, 0, gx.size - 2)
+        j = np.clip(np.searchsorted(gy, py, side="right") - 1, 0, gy.size - 2)
+        u = (px - gx[i]) / (gx[i + 1] - gx[i])
+        v = (py - gy[j]) / (gy[j + 1] - gy[j])
+        # A point on the low edge (u = 0 or v = 0) of a hole cell also lies on the high edge of
+        # its neighbour to the left, below or both: take the first of them that is terrain.
+        i0, j0, u0, v0 = i, j, u, v
+        for di, dj in ((1, 0), (0, 1), (1, 1)):
+            ti, tj = np.maximum(i0 - di, 0), np.maximum(j0 - dj, 0)
+            move = ((cf[j, i] < 0) & (cf[tj, ti] >= 0) & (i0 >= di) & (j0 >= dj)
+                    & ((u0 == 0) | (di == 0)) & ((v0 == 0) | (dj == 0)))
+            i, j = np.where(move, ti, i), np.where(move, tj, j)
+            u, v = np.where(move, u0 + di, u), np.where(move, v0 + dj, v)
+        # Barycentric weights: exact at the nodes, and the same sum on both sides of every
+        # edge and of the diagonal, so the surface is continuous to the last bit.
+        h = np.where(u >= v,
+                     (1 - u) * z[j, i] + (u - v) * z[j, i + 1] + v * z[j + 1, i + 1],
+                     (1 - v) * z[j, i] + (v - u) * z[j + 1, i] + u * z[j + 1, i + 1])
+        out[inside] = np.where(cf[j, i] >= 0, h, np.nan)
+        return out
+
+    @functools.cached_property
+    def steps_m(self) -> tuple[float, float] | None:
+        """(dx, dy) of a grid with uniform steps (to 1e-9 relative), else None."""
+        out = []
+        for a in (self.x_m, self.y_m):
+            d = np.diff(a)
+            if np.ptp(d) > 1e-9 * d.mean():
+                return None
+            out.append(float(d.mean()))
+        return out[0], out[1]
+
+    @functools.cached_property
+    def terrain_cells(self) -> np.ndarray:
+        """Flat indices (row-major) of the cells that are terrain: cell of faces 2k, 2k+1."""
+        return np.flatnonzero(self.cell_face.ravel() >= 0)
+
+    def used_nodes(self) -> np.ndarray:
+        """(ny, nx) bool: the nodes of the cells that are terrain (the mesh's vertices)."""
+        ok = self.cell_face >= 0
+        used = np.zeros(self.z_m.shape, dtype=bool)
+        for dj, di in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            used[dj:dj + ok.shape[0], di:di + ok.shape[1]] |= ok
+        return used
+
+    def face_vertices(self, face_index) -> np.ndarray:
+        """(k, 3, 3) float64 vertices of mesh faces ``face_index`` (k,), in face order (the
+        values of the mesh's vertex array, read off the grid)."""
+        f = np.asarray(face_index, dtype=np.int64)
+        nx = self.x_m.size
+        j, i = np.divmod(self.terrain_cells[f >> 1], nx - 1)
+        up = f & 1               # 0: (v00, v10, v11); 1: the cell's second, (v00, v11, v01)
+        n00 = j * nx + i
+        x, y, z = self.x_m, self.y_m, self.z_m.ravel()
+        out = np.empty((f.size, 3, 3))
+        out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = x[i], y[j], z[n00]
+        out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = x[i + 1], y[j + up], z[n00 + 1 + up * nx]
+        out[:, 2, 0], out[:, 2, 1] = x[i + 1 - up], y[j + 1]
+        out[:, 2, 2] = z[n00 + nx + 1 - up]
+        return out
+
+    def build_mesh(self) -> trimesh.Trimesh:
+        """The triangle mesh of the grid (two triangles per terrain cell, see the class
+        docstring); vertices are the used nodes in row-major order."""
+        ny, nx = self.z_m.shape
+        ok = (self.cell_face >= 0).ravel()
+        idx = np.arange(ny * nx).reshape(ny, nx)
+        v00, v10 = idx[:-1, :-1].ravel()[ok], idx[:-1, 1:].ravel()[ok]   # (j, i), (j, i+1)
+        v01, v11 = idx[1:, :-1].ravel()[ok], idx[1:, 1:].ravel()[ok]     # (j+1, i), (j+1, i+1)
+        faces = np.empty((2 * v00.size, 3), dtype=np.int64)
+        faces[0::2] = np.column_stack([v00, v10, v11])
+        faces[1::2] = np.column_stack([v00, v11, v01])
+        used = self.used_nodes().ravel()
+        xx, yy = np.meshgrid(self.x_m, self.y_m)
+        verts = np.column_stack([xx.ravel()[used], yy.ravel()[used], self.z_m.ravel()[used]])
+        remap = np.cumsum(used) - 1
+        return trimesh.Trimesh(vertices=verts, faces=remap[faces], process=False)
+
+
+class _LazyMesh:
+    """``Terrain.mesh``: the mesh given, or for a heightfield (given as None) the grid's mesh,
+    built on first access -- a run never needs it (heights, ray casting and face planes come
+    from the grid), and for millions of cells it costs a good part of loading a scene."""
+
+    def __set_name__(self, owner, name):
+        self.attr = "_" + name
+
+    def __get__(self, obj, objtype=None):
+        if obj is None:
+            raise AttributeError("mesh has no default")   # a required dataclass field
+        mesh = obj.__dict__[self.attr]
+        if mesh is None:
+            mesh = obj.__dict__[self.attr] = obj.grid.build_mesh()
+        return mesh
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.attr] = value
+
+
+@dataclass(frozen=True, eq=False)
 class Terrain:
     """A triangle mesh (projected metres, z up) with one material code per face.
 
-    mesh: ``trimesh.Trimesh`` with at least one face and finite vertices.
+    mesh: ``trimesh.Trimesh`` with at least one face and finite vertices (not to be modified
+    in place: derived data such as ``bounds`` and ray-casting structures are cached); None
+    with a ``grid``: then built from it on first access.
     face_materials: int array (n_faces,), codes into ``material_names``.
     material_names: tuple of material names (default ``MATERIAL_NAMES``).
     holes: number of grid cells left out for no-data (0 for meshes from files).
+    grid: the :class:`HeightGrid` of a heightfield terrain (``from_heightfield``), else None.
     """
 
-    mesh: trimesh.Trimesh
+    mesh: trimesh.Trimesh = _LazyMesh()
     face_materials: np.ndarray
     material_names: tuple[str, ...] = MATERIAL_NAMES
     holes: int = 0
+    grid: HeightGrid | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        if not isinstance(self.mesh, trimesh.Trimesh):
-            raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(self.mesh).__name__}")  # noqa: TRY004
-        n_faces = len(self.mesh.faces)
+        mesh = self.__dict__["_mesh"]      # as given (None: built from the grid when needed)
+        if self.grid is not None and not isinstance(self.grid, HeightGrid):
+            raise ValueError(f"grid must be a HeightGrid or None, got {type(self.grid).__name__}")
+        if mesh is None and self.grid is not None:
+            n_faces = 2 * int(np.count_nonzero(self.grid.cell_face >= 0))
+        elif not isinstance(mesh, trimesh.Trimesh):
+            raise ValueError(f"mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
+        else:
+            n_faces = len(mesh.faces)
+            if not np.all(np.isfinite(mesh.vertices)):
+                raise ValueError("mesh vertices must be finite (NaN/inf found)")
+            if self.grid is not None and 2 * int(np.count_nonzero(self.grid.cell_face >= 0)) \
+                    != n_faces:
+                raise ValueError("grid must be the HeightGrid the mesh was built from "
+                                 "(two faces per valid cell)")
         if n_faces == 0:
             raise ValueError("mesh has no faces")
-        if not np.all(np.isfinite(self.mesh.vertices)):
-            raise ValueError("mesh vertices must be finite (NaN/inf found)")
         codes = np.asarray(self.face_materials)
         if codes.shape != (n_faces,) or not np.issubdtype(codes.dtype, np.integer):
             raise ValueError(f"face_materials must be an integer array of shape ({n_faces},), "
@@ -93,9 +251,44 @@ class Terrain:
         object.__setattr__(self, "material_names", names)
         object.__setattr__(self, "holes", int(self.holes))
 
+    def __getstate__(self):
+        # derived data (bounds, ray-casting structures, some not picklable): rebuilt on demand
+        return {**self.__dict__, "_cache": {}}
+
     @property
     def n_faces(self) -> int:
-        return len(self.mesh.faces)
+        return len(self.face_materials)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) lowest and highest x, y, z (m) of the vertices that faces use (as
+        ``mesh.bounds``, computed once: trimesh re-hashes the vertices on every access)."""
+        b = self._cache.get("bounds")
+        if b is None:
+            if self.grid is not None:
+                used = self.grid.used_nodes()
+                xs = self.grid.x_m[used.any(axis=0)]
+                ys = self.grid.y_m[used.any(axis=1)]
+                zs = self.grid.z_m[used]
+                b = np.array([[xs[0], ys[0], zs.min()], [xs[-1], ys[-1], zs.max()]])
+            else:
+                v = np.asarray(self.mesh.vertices)
+                used = np.zeros(len(v), dtype=bool)
+                used[np.asarray(self.mesh.faces).ravel()] = True
+                if not used.all():
+                    v = v[used]
+                b = np.array([v.min(axis=0), v.max(axis=0)], dtype=np.float64)
+            b.setflags(write=False)
+            self._cache["bounds"] = b
+        return b
+
+    def face_vertices(self, face_index) -> np.ndarray:
+        """(k, 3, 3) float64 vertices of faces ``face_index`` (k,) (from the grid of a
+        heightfield, without building its mesh)."""
+        if self.grid is not None:
+            return self.grid.face_vertices(face_index)
+        verts = np.asarray(self.mesh.vertices, dtype=np.float64)
+        return np.take(verts, np.take(np.asarray(self.mesh.faces), face_index, axis=0), axis=0)
 
     def face_material_names(self) -> np.ndarray:
         """Material name of every face (object array)."""
@@ -154,6 +347,9 @@ class Terrain:
         (ny, nx) -- a triangle takes the majority code of its three nodes (first node on a
         three-way tie) -- or per cell (ny-1, nx-1). Triangles are wound counter-clockwise seen
         from above, so face normals point up (+z) for increasing x and y.
+
+        The terrain keeps the grid (``Terrain.grid``, axes made increasing); its ``mesh`` is
+        built from it when first used.
         """
         x = np.asarray(x_m, dtype=np.float64)
         y = np.asarray(y_m, dtype=np.float64)
@@ -189,33 +385,23 @@ class Terrain:
         if y[1] < y[0]:
             y, z, codes = y[::-1], z[::-1, :], codes[::-1, :]
         nan = np.isnan(z)
-
-        xx, yy = np.meshgrid(x, y)
-        verts = np.column_stack([xx.ravel(), yy.ravel(), z.ravel()])
-        idx = np.arange(ny * nx).reshape(ny, nx)
-        v00, v10 = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()   # (j, i), (j, i+1)
-        v01, v11 = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()     # (j+1, i), (j+1, i+1)
-        cell_ok = ~(nan[:-1, :-1] | nan[:-1, 1:] | nan[1:, :-1] | nan[1:, 1:]).ravel()
-        holes = int(np.count_nonzero(~cell_ok))
-        if not cell_ok.any():
+        cell_ok = ~(nan[:-1, :-1] | nan[:-1, 1:] | nan[1:, :-1] | nan[1:, 1:])
+        n_ok = int(np.count_nonzero(cell_ok))
+        if n_ok == 0:
             raise ValueError("z_m has no cell with four valid (non-NaN) corners")
-        t1 = np.column_stack([v00, v10, v11])[cell_ok]
-        t2 = np.column_stack([v00, v11, v01])[cell_ok]
-        faces = np.empty((2 * t1.shape[0], 3), dtype=np.int64)
-        faces[0::2], faces[1::2] = t1, t2
-
         if codes.shape == (ny - 1, nx - 1):
-            face_codes = np.repeat(codes.ravel()[cell_ok], 2)
-        else:
-            c = codes.ravel()[faces]
-            a, b, d = c[:, 0], c[:, 1], c[:, 2]
-            face_codes = np.where((a == b) | (a == d), a, np.where(b == d, b, a))
-
-        used = np.zeros(ny * nx, dtype=bool)
-        used[faces] = True
-        remap = np.cumsum(used) - 1
-        mesh = trimesh.Trimesh(vertices=verts[used], faces=remap[faces], process=False)
-        return cls(mesh, face_codes.astype(np.int32), tuple(material_names), holes)
+            face_codes = np.repeat(codes[cell_ok], 2)
+        else:   # per node: a triangle takes the majority of (v00, v10, v11) / (v00, v11, v01)
+            c00, c10 = codes[:-1, :-1][cell_ok], codes[:-1, 1:][cell_ok]
+            c01, c11 = codes[1:, :-1][cell_ok], codes[1:, 1:][cell_ok]
+            face_codes = np.empty(2 * n_ok, dtype=codes.dtype)
+            for k, (a, b, d) in enumerate(((c00, c10, c11), (c00, c11, c01))):
+                face_codes[k::2] = np.where((a == b) | (a == d), a, np.where(b == d, b, a))
+        cell_face = np.full(cell_ok.shape, -1, dtype=np.int64)
+        cell_face[cell_ok] = 2 * np.arange(n_ok)   # the mesh's faces, cell by cell (row-major)
+        grid = HeightGrid(x.copy(), y.copy(), z.copy(), cell_face)
+        return cls(None, face_codes.astype(np.int32), tuple(material_names),
+                   cell_ok.size - n_ok, grid)
 
     @classmethod
     def from_dem(cls, path, material: str = "snow", band: int = 1,

@@ -57,6 +57,7 @@ import os
 import re
 import sys
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -441,13 +442,34 @@ def check_dataset(ds: xr.Dataset) -> None:
 # --------------------------------------------------------------------------------------------
 # writing / reading
 
+#: netCDF-C and HDF5 are not thread-safe: the results files of this process are opened, written
+#: and read one at a time (e.g. the chunks of Dask workers that are threads of one process).
+NETCDF_LOCK = threading.RLock()
+
 
 def _compressed(dtype, ndim: int, size: int) -> bool:
     """Whether a results variable is stored with zlib level 4 (non-empty float arrays)."""
     return bool(np.issubdtype(dtype, np.floating) and ndim and size)
 
 
-def _encoding(ds: xr.Dataset, *, compress: bool = True) -> dict:
+def _chunk_sizes(dims, shape, obs_chunk: int | None):
+    """HDF5 chunk shape of a compressed variable: ``obs_chunk`` observations (at most all of
+    them) by the full other dimensions, or None (netCDF's default chunking) without
+    ``obs_chunk`` or an ``obs`` dimension."""
+    if obs_chunk is None or OBS_DIM not in dims:
+        return None
+    return tuple(min(int(obs_chunk), n) if d == OBS_DIM else n for d, n in zip(dims, shape))
+
+
+def _check_obs_chunk(obs_chunk) -> int | None:
+    if obs_chunk is not None and (isinstance(obs_chunk, (bool, np.bool_))
+                                  or not isinstance(obs_chunk, (int, np.integer))
+                                  or obs_chunk < 1):
+        raise ValueError(f"obs_chunk must be a positive integer or None, got {obs_chunk!r}")
+    return None if obs_chunk is None else int(obs_chunk)
+
+
+def _encoding(ds: xr.Dataset, *, compress: bool = True, obs_chunk: int | None = None) -> dict:
     enc = {}
     for name, var in ds.variables.items():
         if np.issubdtype(var.dtype, np.floating):
@@ -455,6 +477,9 @@ def _encoding(ds: xr.Dataset, *, compress: bool = True) -> dict:
             e = {"_FillValue": None if spec and not spec.nan_allowed else np.nan}
             if compress and _compressed(var.dtype, var.ndim, var.size):
                 e.update(zlib=True, complevel=4)
+                chunks = _chunk_sizes(var.dims, var.shape, obs_chunk)
+                if chunks is not None:
+                    e["chunksizes"] = chunks
             enc[name] = e
         elif var.ndim or np.issubdtype(var.dtype, np.integer):
             enc[name] = {"_FillValue": None}
@@ -489,6 +514,18 @@ def _atomic_write(path, write, *, overwrite: bool) -> Path:
     process killed mid-write leaves only the temp file ``.<name>.<random>.tmp``.
     """
     path = Path(path)
+    tmp = _atomic_begin(path, overwrite=overwrite)
+    try:
+        write(tmp)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return _atomic_commit(tmp, path, overwrite=overwrite)
+
+
+def _atomic_begin(path: Path, *, overwrite: bool) -> Path:
+    """The temp file (created, usual permissions) that :func:`_atomic_commit` renames onto
+    ``path``; FileExistsError for an existing ``path`` unless ``overwrite``."""
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (pass overwrite=True to replace it)")
     directory = path.parent if str(path.parent) else Path(".")
@@ -499,7 +536,17 @@ def _atomic_write(path, write, *, overwrite: bool) -> Path:
     tmp = Path(tmp_name)
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
-        write(tmp)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def _atomic_commit(tmp: Path, path: Path, *, overwrite: bool) -> Path:
+    """fsync the finished temp file ``tmp`` and rename it onto ``path`` (see
+    :func:`_atomic_write`); the temp file is removed on any failure."""
+    directory = path.parent if str(path.parent) else Path(".")
+    try:
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         if overwrite:
@@ -529,21 +576,25 @@ def write_bytes_atomic(path, data: bytes, *, overwrite: bool = True) -> Path:
 
 
 def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False,
-                 compress: bool = True) -> Path:
+                 compress: bool = True, obs_chunk: int | None = None) -> Path:
     """Write ``ds`` to ``path`` atomically (temp file in the same directory, fsync, rename).
 
     An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
     failure no partial file is left at ``path`` and the temp file is removed. Float variables get
     ``_FillValue = NaN`` and zlib level 4 compression (``compress=False``: none, e.g. for
-    temporary chunk files). Returns the path.
+    temporary chunk files), stored in HDF5 chunks of ``obs_chunk`` observations (a run uses its
+    ``survey.chunk_shots``) or, without it, netCDF's default chunking. Returns the path.
     """
     if not isinstance(ds, xr.Dataset):
         raise ValueError(f"ds must be an xarray.Dataset, got {type(ds).__name__}")
+    obs_chunk = _check_obs_chunk(obs_chunk)
     check_dataset(ds)
-    return _atomic_write(
-        path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4",
-                                       encoding=_encoding(ds, compress=compress)),
-        overwrite=overwrite)
+    def write(tmp):
+        with NETCDF_LOCK:
+            ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4",
+                         encoding=_encoding(ds, compress=compress, obs_chunk=obs_chunk))
+
+    return _atomic_write(path, write, overwrite=overwrite)
 
 
 def read_netcdf(path) -> xr.Dataset:
@@ -555,8 +606,8 @@ def read_netcdf(path) -> xr.Dataset:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist")
-    with xr.open_dataset(path, engine="netcdf4", decode_times=False,
-                         decode_timedelta=False) as ds:
+    with NETCDF_LOCK, xr.open_dataset(path, engine="netcdf4", decode_times=False,
+                                      decode_timedelta=False) as ds:
         ds = ds.load()
     for var in ds.variables.values():
         if "flag_values" in var.attrs:
@@ -626,7 +677,7 @@ class ChunkWriter:
         return n
 
     def merge_to_file(self, path, *, overwrite: bool = False,
-                      n_chunks: int | None = None) -> Path:
+                      n_chunks: int | None = None, obs_chunk: int | None = None) -> Path:
         """Stream chunks 0..n-1 into one file at ``path`` (atomic), chunk by chunk.
 
         Memory stays bounded by one chunk's variable whatever the number of chunks: the final
@@ -634,74 +685,34 @@ class ChunkWriter:
         (dimensions, variables, dtypes, compression, fill values, attributes, global attributes)
         copied from chunk 0, and each chunk's stored values are then copied raw (no decoding,
         so NaN fill values and flag dtypes pass unchanged) into their ``obs`` slice. The result
-        is the file :func:`write_netcdf` would write for the concatenated dataset (same values,
-        attributes and encoding: zlib level 4 on float arrays whether or not the chunks were
-        compressed, netCDF's default chunking for the full length).
+        is the file :func:`write_netcdf` (with the same ``obs_chunk``) would write for the
+        concatenated dataset (same values, attributes and encoding: zlib level 4 on float
+        arrays whether or not the chunks were compressed, and the same HDF5 chunking).
 
         Chunks must be contiguous from 0 (exactly ``n_chunks`` when given), with the same
         variables, beams and global attributes; ValueError (naming the chunk) otherwise.
+        See :meth:`start_merge` to append chunks while later ones are still being computed.
         """
         import netCDF4
 
         n = self._check_complete(n_chunks)
-        files = [self.chunk_path(i) for i in range(n)]
-        # Pass 1 (metadata only): consistency and the total obs length.
-        with netCDF4.Dataset(files[0]) as ref:
-            ref_vars = {k: (v.dtype, v.dimensions) for k, v in ref.variables.items()}
-            ref_attrs = {k: ref.getncattr(k) for k in ref.ncattrs()}
-            ref_beam = ref["beam"][:] if "beam" in ref.variables else None
         sizes = []
-        for i, f in enumerate(files):
-            with netCDF4.Dataset(f) as src:
+        for i in range(n):
+            f = self.chunk_path(i)
+            with NETCDF_LOCK, netCDF4.Dataset(f) as src:
                 if OBS_DIM not in src.dimensions:
                     raise ValueError(f"chunk {i} ({f}): no {OBS_DIM!r} dimension")
                 sizes.append(len(src.dimensions[OBS_DIM]))
-                if i == 0:
-                    continue
-                got = {k: (v.dtype, v.dimensions) for k, v in src.variables.items()}
-                if got != ref_vars:
-                    raise ValueError(f"chunk {i} ({f}): variables differ from chunk 0")
-                if ref_beam is not None and not np.array_equal(src["beam"][:], ref_beam):
-                    raise ValueError(f"chunk {i}: beams differ from chunk 0")
-                attrs = {k: src.getncattr(k) for k in src.ncattrs()}
-                diff = sorted(k for k in set(attrs) | set(ref_attrs)
-                              if k not in attrs or k not in ref_attrs
-                              or not np.array_equal(attrs[k], ref_attrs[k]))
-                if diff:
-                    raise ValueError(f"chunk {i} ({f}): global attributes {diff} differ from "
-                                     "chunk 0")
+        with self.start_merge(path, sizes, overwrite=overwrite, obs_chunk=obs_chunk) as merge:
+            return merge.finish()
 
-        def write(tmp):
-            with netCDF4.Dataset(files[0]) as ref, \
-                    netCDF4.Dataset(tmp, "w", format="NETCDF4") as dst:
-                for name, dim in ref.dimensions.items():
-                    dst.createDimension(name, sum(sizes) if name == OBS_DIM else len(dim))
-                for name, v in ref.variables.items():
-                    fill = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else None
-                    size = int(np.prod([len(dst.dimensions[d]) for d in v.dimensions]))
-                    # as write_netcdf (xarray passes shuffle=True, used with zlib only)
-                    out = dst.createVariable(
-                        name, v.datatype, v.dimensions, fill_value=fill,
-                        zlib=_compressed(v.dtype, v.ndim, size), complevel=4, shuffle=True)
-                    out.setncatts({k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"})
-                    out.set_auto_maskandscale(False)
-                    if OBS_DIM not in v.dimensions:  # beam, crs: the same in every chunk
-                        v.set_auto_maskandscale(False)
-                        out[...] = v[...]
-                dst.setncatts({k: ref.getncattr(k) for k in ref.ncattrs()})
-                start = 0
-                for f, m in zip(files, sizes):
-                    with netCDF4.Dataset(f) as src:
-                        for name, v in src.variables.items():
-                            if OBS_DIM not in v.dimensions:
-                                continue
-                            v.set_auto_maskandscale(False)
-                            index = tuple(slice(start, start + m) if d == OBS_DIM
-                                          else slice(None) for d in v.dimensions)
-                            dst[name][index] = v[...]
-                    start += m
-
-        return _atomic_write(path, write, overwrite=overwrite)
+    def start_merge(self, path, sizes, *, overwrite: bool = False,
+                    obs_chunk: int | None = None, on_append=None,
+                    on_append_variables=()) -> ChunkMerge:
+        """A :class:`ChunkMerge` of the chunks of ``obs`` lengths ``sizes`` (chunk 0, 1, ...)
+        into ``path``: it appends each chunk, in order, as soon as its file exists."""
+        return ChunkMerge(self, path, sizes, overwrite=overwrite, obs_chunk=obs_chunk,
+                          on_append=on_append, on_append_variables=on_append_variables)
 
     def merge(self, path, *, overwrite: bool = False, n_chunks: int | None = None) -> xr.Dataset:
         """Concatenate chunks 0..n-1 along ``obs`` into ``path`` (atomic, streamed by
@@ -711,3 +722,161 @@ class ChunkWriter:
         beams; global attributes come from chunk 0 (and must agree in every chunk).
         """
         return read_netcdf(self.merge_to_file(path, overwrite=overwrite, n_chunks=n_chunks))
+
+
+class ChunkMerge:
+    """The results file of a chunked run, built while the chunks are being computed.
+
+    Created by :meth:`ChunkWriter.start_merge` with every chunk's ``obs`` length. Each call of
+    :meth:`append_ready` appends the chunks whose files exist, in chunk order, from the next
+    missing one on (a parallel run calls it as chunks finish, so the copying and compression
+    overlap the computation of later chunks); :meth:`finish` appends the rest and renames the
+    file onto ``path`` atomically. The file is the one :meth:`ChunkWriter.merge_to_file`
+    writes: the temp file ``.<name>.<random>.tmp`` beside ``path`` until :meth:`finish`
+    (removed by :meth:`abort`, or by leaving the ``with`` block on an error).
+
+    With ``obs_chunk`` equal to the run's chunk length, every appended chunk fills whole HDF5
+    chunks, which are compressed and written right away (``sync``), not all at the end.
+    ``on_append(values)`` is called after each chunk with its stored values of the variables
+    ``on_append_variables`` (name -> raw array), e.g. for statistics without reading the chunk
+    again.
+    """
+
+    def __init__(self, writer: ChunkWriter, path, sizes, *, overwrite: bool = False,
+                 obs_chunk: int | None = None, on_append=None, on_append_variables=()):
+        sizes = [int(m) for m in sizes]
+        if not sizes or min(sizes) < 0:
+            raise ValueError(f"sizes must be the obs lengths of one or more chunks, got {sizes}")
+        self.writer = writer
+        self.path = Path(path)
+        self.sizes = sizes
+        self.overwrite = overwrite
+        self.obs_chunk = _check_obs_chunk(obs_chunk)
+        self.on_append = on_append
+        self.on_append_variables = tuple(on_append_variables)
+        self.appended = 0              # chunks 0..appended-1 are in the file
+        self._tmp = _atomic_begin(self.path, overwrite=overwrite)
+        self._dst = None
+        self._ref = None               # chunk 0's variables, beams and global attributes
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:
+            self.abort()
+        return False
+
+    @property
+    def n_chunks(self) -> int:
+        return len(self.sizes)
+
+    def append_ready(self) -> int:
+        """Append the chunks whose files exist, in order, up to the first missing one;
+        returns how many were appended."""
+        done = self.appended
+        while self.appended < self.n_chunks and \
+                self.writer.chunk_path(self.appended).is_file():
+            with NETCDF_LOCK:
+                self._append(self.appended)
+        return self.appended - done
+
+    def finish(self) -> Path:
+        """Append the remaining chunks (ValueError naming the first missing one), close the
+        file and rename it onto ``path``; returns ``path``."""
+        self.append_ready()
+        if self.appended < self.n_chunks:
+            missing = [i for i in range(self.appended, self.n_chunks)
+                       if not self.writer.chunk_path(i).is_file()]
+            raise ValueError(f"chunks missing in {self.writer.path_dir}: {missing}")
+        with NETCDF_LOCK:
+            self._dst.close()
+        self._dst = None
+        return _atomic_commit(self._tmp, self.path, overwrite=self.overwrite)
+
+    def abort(self) -> None:
+        """Close and remove the unfinished file (nothing is left at ``path``)."""
+        if self._dst is not None:
+            try:
+                with NETCDF_LOCK:
+                    self._dst.close()
+            except Exception:  # noqa: BLE001, S110 - removing it anyway
+                pass
+            self._dst = None
+        self._tmp.unlink(missing_ok=True)
+
+    def _create(self, ref) -> None:
+        """Definitions from chunk 0 (``ref``, open): dimensions with the full obs length,
+        variables with their encoding, attributes; variables without ``obs`` copied."""
+        import netCDF4
+
+        dst = netCDF4.Dataset(self._tmp, "w", format="NETCDF4")
+        self._dst = dst
+        for name, dim in ref.dimensions.items():
+            dst.createDimension(name, sum(self.sizes) if name == OBS_DIM else len(dim))
+        for name, v in ref.variables.items():
+            fill = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else None
+            shape = [len(dst.dimensions[d]) for d in v.dimensions]
+            zlib = _compressed(v.dtype, v.ndim, int(np.prod(shape)))
+            # as write_netcdf (xarray passes shuffle=True, used with zlib only)
+            out = dst.createVariable(
+                name, v.datatype, v.dimensions, fill_value=fill, zlib=zlib, complevel=4,
+                shuffle=True,
+                chunksizes=_chunk_sizes(v.dimensions, shape, self.obs_chunk) if zlib else None)
+            out.setncatts({k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"})
+            out.set_auto_maskandscale(False)
+            if OBS_DIM not in v.dimensions:  # beam, crs: the same in every chunk
+                v.set_auto_maskandscale(False)
+                out[...] = v[...]
+        dst.setncatts({k: ref.getncattr(k) for k in ref.ncattrs()})
+        self._ref = ({k: (v.dtype, v.dimensions) for k, v in ref.variables.items()},
+                     ref["beam"][:] if "beam" in ref.variables else None,
+                     {k: ref.getncattr(k) for k in ref.ncattrs()})
+
+    def _check(self, i: int, f: Path, src) -> None:
+        """Chunk ``i`` against chunk 0: variables, beams, global attributes, obs length."""
+        if OBS_DIM not in src.dimensions:
+            raise ValueError(f"chunk {i} ({f}): no {OBS_DIM!r} dimension")
+        m = len(src.dimensions[OBS_DIM])
+        if m != self.sizes[i]:
+            raise ValueError(f"chunk {i} ({f}): {m} observations, expected {self.sizes[i]}")
+        if i == 0:
+            return
+        ref_vars, ref_beam, ref_attrs = self._ref
+        got = {k: (v.dtype, v.dimensions) for k, v in src.variables.items()}
+        if got != ref_vars:
+            raise ValueError(f"chunk {i} ({f}): variables differ from chunk 0")
+        if ref_beam is not None and not np.array_equal(src["beam"][:], ref_beam):
+            raise ValueError(f"chunk {i}: beams differ from chunk 0")
+        attrs = {k: src.getncattr(k) for k in src.ncattrs()}
+        diff = sorted(k for k in set(attrs) | set(ref_attrs)
+                      if k not in attrs or k not in ref_attrs
+                      or not np.array_equal(attrs[k], ref_attrs[k]))
+        if diff:
+            raise ValueError(f"chunk {i} ({f}): global attributes {diff} differ from chunk 0")
+
+    def _append(self, i: int) -> None:
+        import netCDF4
+
+        f = self.writer.chunk_path(i)
+        start = sum(self.sizes[:i])
+        values = {}
+        with netCDF4.Dataset(f) as src:
+            self._check(i, f, src)
+            if i == 0:
+                self._create(src)
+            for name, v in src.variables.items():
+                if OBS_DIM not in v.dimensions:
+                    continue
+                v.set_auto_maskandscale(False)
+                index = tuple(slice(start, start + self.sizes[i]) if d == OBS_DIM
+                              else slice(None) for d in v.dimensions)
+                data = v[...]
+                self._dst[name][index] = data
+                if name in self.on_append_variables:   # only these: memory stays one variable
+                    values[name] = data
+        if self.on_append is not None:
+            self.on_append(values)
+        self.appended = i + 1
+        if self.obs_chunk is not None and self.appended < self.n_chunks:
+            self._dst.sync()    # compress the HDF5 chunks this chunk completed, now

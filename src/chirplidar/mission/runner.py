@@ -26,10 +26,15 @@ resumed run (``resume=True``) writes the same global attributes as an uninterrup
 killed at any moment loses no finished chunk; ``--resume`` skips them, removes temp files of
 killed writes and refuses a manifest that does not match the current run.
 
-When every chunk exists they are merged into the results file by
-:meth:`results.ChunkWriter.merge_to_file` (atomic, chunk slice by chunk slice: memory stays
-bounded by one chunk whatever the mission length), the summary is computed chunk by chunk as
-well, and the chunk directory is removed.
+Finished chunks are appended to the results file in chunk order as soon as they and the
+chunks before them exist (:class:`results.ChunkMerge`: a temp file beside the output, renamed
+onto it atomically at the end; chunk slice by chunk slice, so memory stays bounded by one chunk
+whatever the mission length). The file is stored in HDF5 chunks of ``survey.chunk_shots``
+observations, so each appended chunk is compressed at once: with ``workers=N`` this process
+does it while the workers compute later chunks (on a given ``scheduler``, whose workers may be
+threads of this process, after the last chunk: netCDF calls must not run in two threads at
+once). The summary's first pass reads the chunks as they are appended. When every chunk is in,
+the file is renamed into place, the summary is finished and the chunk directory is removed.
 
 ``workers=N`` (N > 1) runs the chunks on a ``dask.distributed.LocalCluster(n_workers=N,
 threads_per_worker=1, processes=True)``; ``scheduler=ADDRESS`` on an existing cluster (the
@@ -67,7 +72,14 @@ import numpy as np
 from .. import __version__
 from ..config.loader import ConfigError, config_flat, config_with, load_mission
 from . import measure
-from .results import SCHEMA, ChunkWriter, build_dataset, read_netcdf, write_bytes_atomic
+from .results import (
+    NETCDF_LOCK,
+    SCHEMA,
+    ChunkWriter,
+    build_dataset,
+    read_netcdf,
+    write_bytes_atomic,
+)
 from .survey import check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey
 
 if sys.version_info >= (3, 11):
@@ -274,9 +286,9 @@ def _remember(job: ChunkJob, prepared: tuple) -> None:
 
 
 def _prepared(job: ChunkJob) -> tuple:
-    """(config, scene, plan) of ``job``, prepared once per process (scene load, ray-casting
-    structures) and kept in a small cache; ConfigError if the files changed since the run
-    started (their hashes differ from the job's)."""
+    """(config, scene, plan) of ``job``, prepared once per process (scene load, survey plan)
+    and kept in a small cache; ConfigError if the files changed since the run started (their
+    hashes differ from the job's)."""
     key = _job_key(job)
     with _PREPARED_LOCK:   # one preparation per process, also with several worker threads
         hit = _PREPARED.get(key)
@@ -331,7 +343,8 @@ def _dask_run_chunk(job: ChunkJob, index: int) -> str:
     xarray, asked to write a file inside a Dask worker, would guard every netCDF call with a
     cluster-wide lock (one round trip to the scheduler each: hundreds per chunk file, measured
     ~25 % of a chunk's time on the demo). Each chunk is its own file, so chunks run under
-    the synchronous scheduler: xarray then takes a lock local to this process.
+    the synchronous scheduler: xarray then takes a lock local to this process. (Worker threads
+    of one process write their chunk files one at a time: :data:`results.NETCDF_LOCK`.)
     """
     with _synchronous_dask():
         return str(run_chunk(job, index))
@@ -535,8 +548,45 @@ def _order_statistics(blocks, ranks: list[list[int]], first_pass=None) -> list[l
     return [[_key_value(p) for p in ps] for ps in prefix]
 
 
+#: The chunk variables the summary reads.
+SUMMARY_VARIABLES = ("detected", "snr_db", "range_error")
+
+
+class _SummaryPass:
+    """First pass of :func:`_summary_of_chunks`, fed chunk by chunk in chunk order with the
+    stored ``detected``, ``snr_db`` and ``range_error`` values: counts, sums, and the detected
+    shots' SNR and range errors while they fit in ``budget_bytes``."""
+
+    def __init__(self, n_beams: int, budget_bytes: int):
+        self.n_beams, self.budget_bytes = n_beams, budget_bytes
+        self.n_obs = 0
+        self.counts = np.zeros(3, dtype=np.int64)
+        self.s1 = self.s2 = 0.0
+        self.kept: list | None = []
+
+    @staticmethod
+    def detected_columns(det, snr, err):
+        """(detected flags, SNR and range errors of the detected shots), flattened."""
+        det = np.asarray(det).ravel()
+        ok = det == 1
+        return (det, np.asarray(snr).ravel()[ok].astype(np.float64),
+                np.asarray(err).ravel()[ok].astype(np.float64))
+
+    def add(self, det, snr, err) -> None:
+        det, snr, err = self.detected_columns(det, snr, err)
+        self.n_obs += det.size // max(self.n_beams, 1)
+        self.counts += np.bincount(det.astype(np.int64), minlength=3)[:3]
+        self.s1 += float(np.sum(err))
+        self.s2 += float(np.sum(err * err))
+        if self.kept is not None:
+            self.kept.append((snr, err))
+            if 16 * int(self.counts[1]) > self.budget_bytes:
+                self.kept = None
+
+
 def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: int,
-                       elapsed_s: float, budget_bytes: int) -> dict:
+                       elapsed_s: float, budget_bytes: int,
+                       first_pass: _SummaryPass | None = None) -> dict:
     """:func:`summarise` of the run whose chunk files are ``files``, chunk by chunk, in memory
     bounded by ``budget_bytes`` (the run passes one chunk's size).
 
@@ -545,34 +595,30 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
     and quantiles exactly as numpy's (``np.median``; ``np.percentile``, linear method) from
     :func:`_order_statistics`, mean, standard deviation and RMS as sums over chunks (last-bit
     differences from numpy's pairwise sums); five passes over the chunk files.
+    ``first_pass``: the first pass, already fed with every chunk (a run feeds it while it
+    appends chunks to the results file); without it the files are read.
     """
     import netCDF4
 
-    def columns():
+    def stored():
         for f in files:
-            with netCDF4.Dataset(f) as src:
+            with NETCDF_LOCK, netCDF4.Dataset(f) as src:
                 cols = []
-                for name in ("detected", "snr_db", "range_error"):
+                for name in SUMMARY_VARIABLES:
                     v = src[name]
                     v.set_auto_maskandscale(False)
-                    cols.append(np.asarray(v[...]).ravel())
-            det = cols[0]
-            ok = det == 1
-            yield det, cols[1][ok].astype(np.float64), cols[2][ok].astype(np.float64)
+                    cols.append(v[...])
+            yield cols
 
-    n_obs = 0
-    counts = np.zeros(3, dtype=np.int64)
-    s1 = s2 = 0.0
-    kept: list | None = []
-    for det, snr, err in columns():
-        n_obs += det.size // max(n_beams, 1)
-        counts += np.bincount(det.astype(np.int64), minlength=3)[:3]
-        s1 += float(np.sum(err))
-        s2 += float(np.sum(err * err))
-        if kept is not None:
-            kept.append((snr, err))
-            if 16 * int(counts[1]) > budget_bytes:
-                kept = None
+    def columns():
+        return (_SummaryPass.detected_columns(*cols) for cols in stored())
+
+    if first_pass is None:
+        first_pass = _SummaryPass(n_beams, budget_bytes)
+        for cols in stored():
+            first_pass.add(*cols)
+    n_obs, counts, kept = first_pass.n_obs, first_pass.counts, first_pass.kept
+    s1, s2 = first_pass.s1, first_pass.s2
     n_det = int(counts[1])
     nan = float("nan")
     median = mean = std = rms = p95 = nan
@@ -631,6 +677,39 @@ def format_summary(s: dict) -> str:
 
 
 # ---------------------------------------------------------------------------- executing
+#: Freed memory that glibc's malloc may keep for reuse (its trim threshold), see
+#: :func:`_keep_freed_memory`.
+MALLOC_KEEP_BYTES = 256 << 20
+_MALLOC_KEPT: list = []
+
+
+def _keep_freed_memory() -> None:
+    """Let glibc's malloc keep up to ``MALLOC_KEEP_BYTES`` of freed memory in this process
+    (and in the worker processes a local cluster forks from it), once per process.
+
+    A chunk allocates and frees some 100 MB of arrays (demo mission). By default malloc hands
+    freed memory back to the system and the next chunk takes it back page by page: measured
+    on the demo, ~30 thousand page faults per serial run, and ~40 thousand per worker process
+    in a 2-worker run (a Dask task runs in a thread, whose malloc arena returns memory more
+    eagerly than the main one): 0.1-0.2 s of system time per process. Elsewhere than glibc
+    (macOS, musl) nothing is changed.
+    """
+    if _MALLOC_KEPT:
+        return
+    _MALLOC_KEPT.append(True)
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        return
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):   # pragma: no cover - glibc always has it
+        return
+    m_trim_threshold = -1                 # <malloc.h> M_TRIM_THRESHOLD
+    mallopt(ctypes.c_int(m_trim_threshold), ctypes.c_int(MALLOC_KEEP_BYTES))
+
 def _chunk_delay_s() -> float:
     raw = os.environ.get(CHUNK_DELAY_ENV, "").strip()
     if not raw:
@@ -644,18 +723,36 @@ def _chunk_delay_s() -> float:
     return delay
 
 
-def _run_serial(job: ChunkJob, todo: list[int], bar) -> None:
+def _run_serial(job: ChunkJob, todo: list[int], bar, on_chunk=None) -> None:
+    """The missing chunks in this process; ``on_chunk()`` after each one."""
     delay = _chunk_delay_s()
     for i in todo:
         run_chunk(job, i, progress=bar.update if bar else None)
+        if on_chunk is not None:
+            on_chunk()
         if delay:
             time.sleep(delay)
 
 
+#: Our own local cluster runs one batch of chunk tasks with no dashboard: its housekeeping
+#: would cost CPU that the chunks need (on 2 cores about a tenth of a core for the demo run):
+#: no statistical profiler (10 ms samples of every worker), no work stealing (the tasks are
+#: queued on the scheduler and handed out in chunk order as workers free up), and event-loop,
+#: memory and system monitors every second instead of every 20-500 ms.
+_LOCAL_CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.scheduler.work-stealing": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "1s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+
+
 def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
-              timings: dict) -> None:
-    """One Dask task per missing chunk; the progress bar follows completed futures. On an error
-    or interrupt the other tasks are cancelled and the cluster closed; finished chunks stay."""
+              timings: dict, on_chunk=None) -> None:
+    """One Dask task per missing chunk; the progress bar follows completed futures and
+    ``on_chunk()`` is called (in this process) as each one finishes. On an error or interrupt
+    the other tasks are cancelled and the cluster closed; finished chunks stay."""
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError as exc:
@@ -674,13 +771,14 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
             import dask
 
             # Linux: fork the worker processes from this one, after prepare(): they inherit the
-            # imported modules and the prepared mission (scene, ray-casting structures) in the
-            # cache of _prepared, instead of paying both again per worker (seconds each).
+            # imported modules and the prepared mission (configuration, scene, plan) in the
+            # cache of _prepared, instead of paying both again per worker.
             method = "fork" if sys.platform.startswith("linux") else \
                 dask.config.get("distributed.worker.multiprocessing-method")
             # (Python >= 3.12 warns about fork in a process with threads: the cluster's own
             # event-loop thread is one; the workers start single-threaded from the forking one.)
-            with dask.config.set({"distributed.worker.multiprocessing-method": method}), \
+            with dask.config.set({"distributed.worker.multiprocessing-method": method,
+                                  **_LOCAL_CLUSTER_CONFIG}), \
                     warnings.catch_warnings():
                 warnings.filterwarnings("ignore", message=r".*use of fork\(\) may lead to",
                                         category=DeprecationWarning)
@@ -691,14 +789,17 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
         token = uuid.uuid4().hex[:12]
         shots = {}
         for i in todo:
+            # priority: chunks start in chunk order, so that they can be appended as they end
             fut = client.submit(_dask_run_chunk, job, i, key=f"chirplidar-chunk-{token}-{i:05d}",
-                                pure=False, retries=0)
+                                pure=False, retries=0, priority=-i)
             shots[fut.key] = plan.chunk_times(i).size * plan.beams.n_beams
             futures.append(fut)
         for fut in as_completed(futures):
             fut.result()   # re-raises a worker's error (ConfigError, ValueError, ...) as is
             if bar:
                 bar.update(shots[fut.key])
+            if on_chunk is not None:
+                on_chunk()
     except BaseException:
         if client is not None and futures:
             try:
@@ -787,7 +888,8 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
                                   "settings, or pass --overwrite to discard them")
             date_created = old["date_created"]
         _remove_temporaries(chunk_dir, out)
-    elif chunk_dir.exists():   # overwrite: discard the unfinished run
+    elif chunk_dir.exists():   # overwrite: discard the unfinished run (and its results temp)
+        _remove_temporaries(chunk_dir, out)
         shutil.rmtree(chunk_dir)
     if old is None:
         if date_created is None:
@@ -814,9 +916,15 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
 
 def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwrite: bool,
              progress: bool, workers, scheduler, timings: dict, t0: float) -> RunResult:
-    """The missing chunks (serial or Dask), then the merge, the summary and the removal of the
-    chunk directory."""
+    """The missing chunks (serial or Dask), each appended to the results file (in chunk order)
+    as soon as it and the chunks before it exist, then the end of the merge, the summary and
+    the removal of the chunk directory.
+
+    The results file is stored in HDF5 chunks of ``survey.chunk_shots`` observations, so each
+    appended chunk is compressed right away (see the module docstring).
+    ``timings["chunk_appends_s"]`` is the part of ``chunks_s`` spent appending."""
     sv = config.survey
+    _keep_freed_memory()    # before a local cluster forks its workers: they inherit it
     writer = ChunkWriter(chunk_dir)
     done = set(writer.completed_chunks())
     todo = [i for i in range(plan.n_chunks) if i not in done]
@@ -828,12 +936,32 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
         bar = tqdm(total=plan.n_shots * n_beams, unit="shot", desc=f"run {sv.tier}",
                    leave=False, initial=sum(plan.chunk_times(i).size for i in done) * n_beams)
     t1 = time.perf_counter()
+    one_chunk = plan.chunk_shots * plan.beams.n_beams * 8 * len(SCHEMA)   # bytes, float64
+    summary_pass = _SummaryPass(plan.beams.n_beams, budget_bytes=one_chunk)
+    merge = writer.start_merge(
+        out, [plan.chunk_times(i).size for i in range(plan.n_chunks)], overwrite=overwrite,
+        obs_chunk=plan.chunk_shots, on_append_variables=SUMMARY_VARIABLES,
+        on_append=lambda values: summary_pass.add(*(values[k] for k in SUMMARY_VARIABLES)))
+    appends_s = [0.0]
+
+    def append_ready():
+        t = time.perf_counter()
+        merge.append_ready()
+        appends_s[0] += time.perf_counter() - t
+
     try:
+        append_ready()   # the chunks a resumed run has already
         if scheduler is None and (workers is None or workers == 1):
-            _run_serial(job, todo, bar)
+            _run_serial(job, todo, bar, append_ready)
         else:
-            _run_dask(job, todo, plan, workers, scheduler, bar, timings)
+            # Appending reads and writes netCDF files, and netCDF/HDF5 calls must not run in
+            # two threads of a process at once: only while the chunks are computed in worker
+            # processes of our own cluster; on a given scheduler, whose workers may be threads
+            # of this process, at the end.
+            _run_dask(job, todo, plan, workers, scheduler, bar, timings,
+                      append_ready if scheduler is None else None)
     except BaseException:
+        merge.abort()
         if not writer.completed_chunks():   # nothing to resume: do not block the next run
             shutil.rmtree(chunk_dir, ignore_errors=True)
         raise
@@ -841,12 +969,13 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
         if bar:
             bar.close()
     timings["chunks_s"] = time.perf_counter() - t1
+    timings["chunk_appends_s"] = appends_s[0]
     t2 = time.perf_counter()
-    path = writer.merge_to_file(out, overwrite=overwrite, n_chunks=plan.n_chunks)
+    with merge:
+        path = merge.finish()
     files = [writer.chunk_path(i) for i in range(plan.n_chunks)]
-    one_chunk = plan.chunk_shots * plan.beams.n_beams * 8 * len(SCHEMA)   # bytes, float64
     summary = _summary_of_chunks(files, path, sv.tier, config.seed, plan.beams.n_beams, 0.0,
-                                 budget_bytes=one_chunk)
+                                 budget_bytes=one_chunk, first_pass=summary_pass)
     shutil.rmtree(chunk_dir, ignore_errors=True)
     timings["merge_s"] = time.perf_counter() - t2
     summary["elapsed_s"] = time.perf_counter() - t0

@@ -4,8 +4,9 @@ Both runs are full :func:`runner.run_mission` calls (wall time from the call to 
 preparation, cluster start-up and shut-down, chunks, merge and summary), of the same mission
 with the same seed, into a temporary directory, alternated ``repeats`` times (medians
 reported: other load on the machine hits both alike). The terrain cache is filled and the modules are
-imported by an untimed preparation first, so that neither run pays a one-off cost the other
-does not. The two results files are compared (they must be identical).
+imported by an untimed preparation first (dask.distributed included: a serial run's first
+chunk file would import it otherwise), so that neither run pays a one-off cost the other does
+not. The two results files are compared (they must be identical).
 """
 
 from __future__ import annotations
@@ -32,8 +33,11 @@ def bench_scale(mission=None, overrides=(), *, workers: int = 2, repeats: int = 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
     mission = Path(mission) if mission is not None else default_mission_path(MISSION_NAME)
-    prepare(mission, overrides=list(overrides))   # untimed: terrain cache, imports ...
-    xr.Variable(("obs",), [0.0])                   # ... and dask.array, which xarray imports
+    # Untimed: the terrain cache and the imports, dask.array (xarray imports it) and
+    # dask.distributed (a serial run's first chunk file write asks it for a client).
+    prepare(mission, overrides=list(overrides))
+    xr.Variable(("obs",), [0.0])
+    import dask.distributed  # noqa: F401
     pairs = []
     identical = True
     with tempfile.TemporaryDirectory(prefix="chirplidar-scale-") as tmp:

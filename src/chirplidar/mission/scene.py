@@ -763,13 +763,13 @@ class Scene:
     @property
     def bounds_xy(self) -> tuple[float, float, float, float]:
         """(x0, x1, y0, y1) of the terrain mesh in the EPSG frame (m)."""
-        lo, hi = self.terrain.mesh.bounds
+        lo, hi = self.terrain.bounds
         return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
 
     @property
     def height_range_m(self) -> tuple[float, float]:
         """(z_min, z_max): ellipsoidal height range of the terrain (m)."""
-        lo, hi = self.terrain.mesh.bounds
+        lo, hi = self.terrain.bounds
         return float(lo[2]), float(hi[2])
 
     @property
@@ -791,10 +791,14 @@ class Scene:
     def ground_height_m(self, x_m, y_m) -> np.ndarray:
         """Terrain height (ellipsoidal, m) below grid points (x_m, y_m) (EPSG metres).
 
-        Vectorised over broadcast x_m, y_m: a vertical ray is cast down from above the highest
-        terrain point; NaN where it misses (off the terrain, no-data holes) or x/y is not finite.
-        On overhangs (mesh files) the highest surface is returned.
+        Vectorised over broadcast x_m, y_m; NaN off the terrain, in no-data holes and where x/y
+        is not finite. Heightfield terrains (generated, DEM) evaluate the plane of the grid
+        triangle under each point directly (``HeightGrid.surface_height_m``); mesh files cast a
+        vertical ray down from above the highest terrain point, and on overhangs the highest
+        surface is returned.
         """
+        if self.terrain.grid is not None:
+            return self.terrain.grid.surface_height_m(x_m, y_m)
         x, y = np.broadcast_arrays(np.asarray(x_m, dtype=np.float64),
                                    np.asarray(y_m, dtype=np.float64))
         out = np.full(x.shape, np.nan)
@@ -821,7 +825,7 @@ class Scene:
             h2 = cast_rays(self.terrain, on, d[: retry.size])
             got = h2.hit
             if got.any():
-                tri = self.terrain.mesh.vertices[self.terrain.mesh.faces[h2.face_index[got]]]
+                tri = self.terrain.face_vertices(h2.face_index[got])
                 n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
                 px, py = xo[retry[got]], yo[retry[got]]
                 z[retry[got]] = tri[:, 0, 2] - (n[:, 0] * (px - tri[:, 0, 0])
@@ -1068,7 +1072,7 @@ def scene_from_text(text: str, *, base_dir, source: str | None = None, path=None
         terr = _dem_terrain(tc, base_dir, source, cfg.epsg)
     _check_specular_slopes(cfg, terr, source)
     if centre is None:
-        lo, hi = terr.mesh.bounds
+        lo, hi = terr.bounds
         centre = (float(lo[0] + hi[0]) / 2, float(lo[1] + hi[1]) / 2)
     build_s = time.perf_counter() - t0
     say(f"terrain ready: {terr.n_faces} triangles")
