@@ -535,6 +535,16 @@ def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
     }
 
 
+def _footprint_returns(config, scene, geom, seq):
+    """What the time-domain tiers (rf, baseband) start from: received power (n, b) and mean range
+    without the Doppler and speckle effects (their own draws replace speckle), the sub-rays'
+    power shares, their speckle fields (or None) and the shots with a return."""
+    psig, r_mean, _, frac = received_power(config, scene, geom, seq,
+                                           exclude_effects=("doppler", "speckle"))
+    fields = subray_speckle_fields(config, scene, geom, seq)
+    return psig, r_mean, frac, fields, np.isfinite(r_mean) & (psig > 0)
+
+
 def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     """rf-tier measurements: each shot-beam is simulated at full rate, its footprint's sub-rays
     summed as delayed echoes (``tiers.rf`` ``echoes``, see :func:`footprint_echoes`): a sloped or
@@ -546,11 +556,8 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     from ..tiers.rf import simulate_rf
 
     bud = make_budget(config)
-    psig, r_mean, _, frac = received_power(config, scene, geom, seq,
-                                           exclude_effects=("doppler", "speckle"))
-    fields = subray_speckle_fields(config, scene, geom, seq)
+    psig, r_mean, frac, fields, ok = _footprint_returns(config, scene, geom, seq)
     n, b = psig.shape
-    ok = np.isfinite(r_mean) & (psig > 0)
     lw = config.laser.linewidth_hz > 0
     enabled = (["phase_noise"] if lw else []) + (["doppler"] if "doppler" in scene.effects else [])
     base = _node_config(config, enabled)
@@ -613,11 +620,8 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
 
     bud = make_budget(config)
     band_top = band_top_hz_or_nyquist(config, bud, baseband_grid(config, bud)[0])
-    psig, r_mean, _, frac = received_power(config, scene, geom, seq,
-                                           exclude_effects=("doppler", "speckle"))
-    fields = subray_speckle_fields(config, scene, geom, seq)
+    psig, r_mean, frac, fields, ok = _footprint_returns(config, scene, geom, seq)
     n, b = psig.shape
-    ok = np.isfinite(r_mean) & (psig > 0)
     lw = config.laser.linewidth_hz > 0
     base = _node_config(config, ["phase_noise"] if lw else [])
     snr = np.zeros((n, b))
