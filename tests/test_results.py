@@ -227,6 +227,84 @@ def test_incremental_merge_in_any_completion_order(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["chunks", "inc.nc", "merged.nc", "whole.nc"]
 
 
+def _stored_chunks(path, name):
+    """(offset, filter mask, compressed bytes) of every HDF5 chunk of variable ``name``."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        d = f[name].id
+        return [(i.chunk_offset, *d.read_direct_chunk(i.chunk_offset))
+                for i in (d.get_chunk_info(k) for k in range(d.get_num_chunks()))]
+
+
+def _spy_copies(monkeypatch):
+    """Record (variable, chunk start, copied raw?) of every variable the merge copies."""
+    from chirplidar.mission import results
+
+    calls = []
+    copy = results._copy_hdf5_variable
+
+    def spy(src, dst, axis, start, last):
+        import h5py
+
+        out = copy(src, dst, axis, start, last)
+        calls.append((h5py.h5i.get_name(src[0]).decode().lstrip("/"), start, out is None))
+        return out
+
+    monkeypatch.setattr(results, "_copy_hdf5_variable", spy)
+    return calls
+
+
+def test_merge_copies_compressed_chunks_as_stored(tmp_path, monkeypatch):
+    """Chunks written with the merge's obs_chunk (a run's chunk files) are copied into the
+    results file as their compressed HDF5 chunks, byte for byte -- the short last chunk too
+    (stored full-size along an unlimited obs) -- and the file is write_netcdf's of the whole
+    dataset with that obs_chunk (reference)."""
+    calls = _spy_copies(monkeypatch)
+    full = _per_shot(n_shots=27)
+    ds = _build(full)
+    cw = ChunkWriter(tmp_path / "chunks")
+    bounds = [(0, 10), (10, 20), (20, 27)]
+    files = [cw.write(i, _build({k: v[:, a:b] for k, v in full.items()}), obs_chunk=10)
+             for i, (a, b) in enumerate(bounds)]
+    import netCDF4
+
+    with netCDF4.Dataset(files[2]) as d:          # the short one: obs unlimited, 1 HDF5 chunk
+        assert d.dimensions["obs"].isunlimited() and d["range_true"].chunking() == [3, 10]
+    cw.merge_to_file(tmp_path / "merged.nc", obs_chunk=10)
+    write_netcdf(ds, tmp_path / "whole.nc", obs_chunk=10)
+    xr.testing.assert_identical(read_netcdf(tmp_path / "merged.nc"), ds)
+    assert _file_header(tmp_path / "merged.nc") == _file_header(tmp_path / "whole.nc")
+    for name in ("range_true", "snr_db", "delta_time"):
+        got = _stored_chunks(tmp_path / "merged.nc", name)
+        want = [((o[0], o[1] + a), m, raw) for (a, _), f in zip(bounds, files)
+                for o, m, raw in _stored_chunks(f, name)]
+        assert got == want, name
+    # compressed (float) variables copied as stored, the uncompressed integer flags as values
+    floats = {k for k, v in ds.variables.items() if v.dtype.kind == "f"}
+    assert {(name, start, name in floats) for name, start, _ in calls} == set(calls)
+    assert {start for _, start, _ in calls} == {0, 10, 20}
+
+
+def test_merge_of_chunks_off_the_chunk_grid(tmp_path, monkeypatch):
+    """Chunk files whose HDF5 chunks do not fit the results file's (a chunk longer than
+    obs_chunk, another starting off its grid, others uncompressed or chunked otherwise) are
+    decompressed and compressed again: the same file as write_netcdf's of the whole."""
+    calls = _spy_copies(monkeypatch)
+    full = _per_shot(n_shots=29)
+    ds = _build(full)
+    cw = ChunkWriter(tmp_path / "chunks")
+    bounds = [(0, 12), (12, 20), (20, 25), (25, 29)]
+    for i, (a, b) in enumerate(bounds):
+        part = _build({k: v[:, a:b] for k, v in full.items()})
+        cw.write(i, part, **({"compress": False} if i == 2 else {"obs_chunk": (10, 10, 10, 3)[i]}))
+    cw.merge_to_file(tmp_path / "merged.nc", obs_chunk=10)
+    write_netcdf(ds, tmp_path / "whole.nc", obs_chunk=10)
+    xr.testing.assert_identical(read_netcdf(tmp_path / "merged.nc"), ds)
+    assert _file_header(tmp_path / "merged.nc") == _file_header(tmp_path / "whole.nc")
+    assert calls and not any(raw for _, _, raw in calls)   # no chunk fits the grid
+
+
 def test_incremental_merge_errors_leave_nothing(tmp_path):
     full = _per_shot(n_shots=20)
     cw = ChunkWriter(tmp_path / "chunks")

@@ -452,13 +452,14 @@ def _compressed(dtype, ndim: int, size: int) -> bool:
     return bool(np.issubdtype(dtype, np.floating) and ndim and size)
 
 
-def _chunk_sizes(dims, shape, obs_chunk: int | None):
+def _chunk_sizes(dims, shape, obs_chunk: int | None, *, obs_unlimited: bool = False):
     """HDF5 chunk shape of a compressed variable: ``obs_chunk`` observations (at most all of
-    them) by the full other dimensions, or None (netCDF's default chunking) without
-    ``obs_chunk`` or an ``obs`` dimension."""
+    them, unless ``obs`` is unlimited) by the full other dimensions, or None (netCDF's default
+    chunking) without ``obs_chunk`` or an ``obs`` dimension."""
     if obs_chunk is None or OBS_DIM not in dims:
         return None
-    return tuple(min(int(obs_chunk), n) if d == OBS_DIM else n for d, n in zip(dims, shape))
+    return tuple((int(obs_chunk) if obs_unlimited else min(int(obs_chunk), n))
+                 if d == OBS_DIM else n for d, n in zip(dims, shape))
 
 
 def _check_obs_chunk(obs_chunk) -> int | None:
@@ -469,20 +470,27 @@ def _check_obs_chunk(obs_chunk) -> int | None:
     return None if obs_chunk is None else int(obs_chunk)
 
 
-def _encoding(ds: xr.Dataset, *, compress: bool = True, obs_chunk: int | None = None) -> dict:
+def _encoding(ds: xr.Dataset, *, compress: bool = True, obs_chunk: int | None = None,
+              obs_unlimited: bool = False) -> dict:
     enc = {}
     for name, var in ds.variables.items():
+        zlib = compress and _compressed(var.dtype, var.ndim, var.size)
         if np.issubdtype(var.dtype, np.floating):
             spec = SCHEMA_BY_NAME.get(name)
             e = {"_FillValue": None if spec and not spec.nan_allowed else np.nan}
-            if compress and _compressed(var.dtype, var.ndim, var.size):
+            if zlib:
                 e.update(zlib=True, complevel=4)
-                chunks = _chunk_sizes(var.dims, var.shape, obs_chunk)
-                if chunks is not None:
-                    e["chunksizes"] = chunks
-            enc[name] = e
         elif var.ndim or np.issubdtype(var.dtype, np.integer):
-            enc[name] = {"_FillValue": None}
+            e = {"_FillValue": None}
+        else:
+            continue
+        # chunked: compressed variables and, along an unlimited obs, all (netCDF's default
+        # there is one value per chunk)
+        if zlib or (obs_unlimited and OBS_DIM in var.dims):
+            chunks = _chunk_sizes(var.dims, var.shape, obs_chunk, obs_unlimited=obs_unlimited)
+            if chunks is not None:
+                e["chunksizes"] = chunks
+        enc[name] = e
     return enc
 
 
@@ -585,14 +593,25 @@ def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False,
     temporary chunk files), stored in HDF5 chunks of ``obs_chunk`` observations (a run uses its
     ``survey.chunk_shots``) or, without it, netCDF's default chunking. Returns the path.
     """
+    return _write_netcdf(ds, path, overwrite=overwrite, compress=compress, obs_chunk=obs_chunk)
+
+
+def _write_netcdf(ds: xr.Dataset, path, *, overwrite: bool, compress: bool,
+                  obs_chunk: int | None, obs_unlimited: bool = False) -> Path:
+    """:func:`write_netcdf`; ``obs_unlimited``: ``obs`` is an unlimited dimension, so that
+    compressed variables are stored in HDF5 chunks of ``obs_chunk`` observations even when
+    there are fewer (see :meth:`ChunkWriter.write`)."""
     if not isinstance(ds, xr.Dataset):
         raise ValueError(f"ds must be an xarray.Dataset, got {type(ds).__name__}")
     obs_chunk = _check_obs_chunk(obs_chunk)
     check_dataset(ds)
+    encoding = _encoding(ds, compress=compress, obs_chunk=obs_chunk, obs_unlimited=obs_unlimited)
+    unlimited = [OBS_DIM] if obs_unlimited and OBS_DIM in ds.dims else None
+
     def write(tmp):
         with NETCDF_LOCK:
-            ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4",
-                         encoding=_encoding(ds, compress=compress, obs_chunk=obs_chunk))
+            ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=encoding,
+                         unlimited_dims=unlimited)
 
     return _atomic_write(path, write, overwrite=overwrite)
 
@@ -641,10 +660,21 @@ class ChunkWriter:
         return self.path_dir / f"chunk_{int(index):05d}.nc"
 
     def write(self, index: int, ds: xr.Dataset, *, overwrite: bool = False,
-              compress: bool = True) -> Path:
+              compress: bool = True, obs_chunk: int | None = None) -> Path:
         """Write chunk ``index`` atomically; an existing chunk raises FileExistsError unless
-        ``overwrite``. ``compress=False`` skips zlib (the merged file is compressed anyway)."""
-        return write_netcdf(ds, self.chunk_path(index), overwrite=overwrite, compress=compress)
+        ``overwrite``. ``compress=False`` skips zlib (the merged file is compressed anyway).
+
+        ``obs_chunk``: the ``obs_chunk`` of the merged file (a run's chunk length). The chunk's
+        compressed variables are then stored in one HDF5 chunk of that shape -- a chunk with
+        fewer observations (a run's last) has an unlimited ``obs`` dimension, so that its HDF5
+        chunk is still full-size -- and the merge copies them as stored, without decompressing
+        and compressing them again (:class:`ChunkMerge`).
+        """
+        obs_chunk = _check_obs_chunk(obs_chunk)
+        short = obs_chunk is not None and ds.sizes.get(OBS_DIM, obs_chunk) < obs_chunk
+        return _write_netcdf(ds, self.chunk_path(index), overwrite=overwrite,
+                             compress=compress, obs_chunk=obs_chunk,
+                             obs_unlimited=compress and short)
 
     def completed_chunks(self) -> list[int]:
         """Sorted indices of the chunks on disk (temp files of a killed write are ignored)."""
@@ -729,14 +759,19 @@ class ChunkMerge:
 
     Created by :meth:`ChunkWriter.start_merge` with every chunk's ``obs`` length. Each call of
     :meth:`append_ready` appends the chunks whose files exist, in chunk order, from the next
-    missing one on (a parallel run calls it as chunks finish, so the copying and compression
-    overlap the computation of later chunks); :meth:`finish` appends the rest and renames the
-    file onto ``path`` atomically. The file is the one :meth:`ChunkWriter.merge_to_file`
-    writes: the temp file ``.<name>.<random>.tmp`` beside ``path`` until :meth:`finish`
-    (removed by :meth:`abort`, or by leaving the ``with`` block on an error).
+    missing one on (a parallel run calls it as chunks finish, so the copying overlaps the
+    computation of later chunks); :meth:`finish` appends the rest and renames the file onto
+    ``path`` atomically. The file is the one :meth:`ChunkWriter.merge_to_file` writes: the
+    temp file ``.<name>.<random>.tmp`` beside ``path`` until :meth:`finish` (removed by
+    :meth:`abort`, or by leaving the ``with`` block on an error).
 
-    With ``obs_chunk`` equal to the run's chunk length, every appended chunk fills whole HDF5
-    chunks, which are compressed and written right away (``sync``), not all at the end.
+    The definitions (dimensions, variables, attributes) are written by netCDF from chunk 0;
+    the ``obs`` data of every chunk is then copied with h5py. Where a chunk file stores a
+    variable as the results file does (same HDF5 chunk shape, filters and dtype, aligned on
+    the results file's chunk grid: chunks written by :meth:`ChunkWriter.write` with this
+    ``obs_chunk``), its compressed HDF5 chunks are copied as they are; otherwise the values are
+    read and written (decompressed and compressed again). A run thus compresses each chunk
+    once, in the process that computed it.
     ``on_append(values)`` is called after each chunk with its stored values of the variables
     ``on_append_variables`` (name -> raw array), e.g. for statistics without reading the chunk
     again.
@@ -756,7 +791,8 @@ class ChunkMerge:
         self.on_append_variables = tuple(on_append_variables)
         self.appended = 0              # chunks 0..appended-1 are in the file
         self._tmp = _atomic_begin(self.path, overwrite=overwrite)
-        self._dst = None
+        self._dst = None               # the temp file (h5py FileID) once chunk 0 is in
+        self._targets = {}             # its obs variables: name -> _h5_variable(...)
         self._ref = None               # chunk 0's variables, beams and global attributes
 
     def __enter__(self):
@@ -807,28 +843,33 @@ class ChunkMerge:
 
     def _create(self, ref) -> None:
         """Definitions from chunk 0 (``ref``, open): dimensions with the full obs length,
-        variables with their encoding, attributes; variables without ``obs`` copied."""
+        variables with their encoding, attributes; variables without ``obs`` copied. netCDF
+        then closes the file and h5py opens it for the ``obs`` data."""
+        import h5py
         import netCDF4
 
-        dst = netCDF4.Dataset(self._tmp, "w", format="NETCDF4")
-        self._dst = dst
-        for name, dim in ref.dimensions.items():
-            dst.createDimension(name, sum(self.sizes) if name == OBS_DIM else len(dim))
-        for name, v in ref.variables.items():
-            fill = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else None
-            shape = [len(dst.dimensions[d]) for d in v.dimensions]
-            zlib = _compressed(v.dtype, v.ndim, int(np.prod(shape)))
-            # as write_netcdf (xarray passes shuffle=True, used with zlib only)
-            out = dst.createVariable(
-                name, v.datatype, v.dimensions, fill_value=fill, zlib=zlib, complevel=4,
-                shuffle=True,
-                chunksizes=_chunk_sizes(v.dimensions, shape, self.obs_chunk) if zlib else None)
-            out.setncatts({k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"})
-            out.set_auto_maskandscale(False)
-            if OBS_DIM not in v.dimensions:  # beam, crs: the same in every chunk
-                v.set_auto_maskandscale(False)
-                out[...] = v[...]
-        dst.setncatts({k: ref.getncattr(k) for k in ref.ncattrs()})
+        with netCDF4.Dataset(self._tmp, "w", format="NETCDF4") as dst:
+            for name, dim in ref.dimensions.items():
+                dst.createDimension(name, sum(self.sizes) if name == OBS_DIM else len(dim))
+            for name, v in ref.variables.items():
+                fill = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else None
+                shape = [len(dst.dimensions[d]) for d in v.dimensions]
+                zlib = _compressed(v.dtype, v.ndim, int(np.prod(shape)))
+                # as write_netcdf (xarray passes shuffle=True, used with zlib only)
+                out = dst.createVariable(
+                    name, v.datatype, v.dimensions, fill_value=fill, zlib=zlib, complevel=4,
+                    shuffle=True, chunksizes=_chunk_sizes(v.dimensions, shape, self.obs_chunk)
+                    if zlib else None)
+                out.setncatts({k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"})
+                out.set_auto_maskandscale(False)
+                if OBS_DIM not in v.dimensions:  # beam, crs: the same in every chunk
+                    v.set_auto_maskandscale(False)
+                    out[...] = v[...]
+            dst.setncatts({k: ref.getncattr(k) for k in ref.ncattrs()})
+        # h5py's low-level API: its high-level objects cost ~0.1 ms per lookup and property
+        self._dst = _h5_open(self._tmp, h5py.h5f.ACC_RDWR)
+        self._targets = {name: _h5_variable(self._dst, name) for name, v in
+                         ref.variables.items() if OBS_DIM in v.dimensions}
         self._ref = ({k: (v.dtype, v.dimensions) for k, v in ref.variables.items()},
                      ref["beam"][:] if "beam" in ref.variables else None,
                      {k: ref.getncattr(k) for k in ref.ncattrs()})
@@ -856,27 +897,89 @@ class ChunkMerge:
             raise ValueError(f"chunk {i} ({f}): global attributes {diff} differ from chunk 0")
 
     def _append(self, i: int) -> None:
+        import h5py
         import netCDF4
 
         f = self.writer.chunk_path(i)
         start = sum(self.sizes[:i])
-        values = {}
         with netCDF4.Dataset(f) as src:
             self._check(i, f, src)
             if i == 0:
                 self._create(src)
-            for name, v in src.variables.items():
-                if OBS_DIM not in v.dimensions:
-                    continue
-                v.set_auto_maskandscale(False)
-                index = tuple(slice(start, start + self.sizes[i]) if d == OBS_DIM
-                              else slice(None) for d in v.dimensions)
-                data = v[...]
-                self._dst[name][index] = data
+            axes = {name: v.dimensions.index(OBS_DIM) for name, v in src.variables.items()
+                    if OBS_DIM in v.dimensions}
+        values = {}
+        src = _h5_open(f, h5py.h5f.ACC_RDONLY)
+        try:
+            for name, axis in axes.items():
+                source = _h5_variable(src, name)
+                data = _copy_hdf5_variable(source, self._targets[name], axis, start,
+                                           last=i == self.n_chunks - 1)
                 if name in self.on_append_variables:   # only these: memory stays one variable
-                    values[name] = data
+                    values[name] = _h5_read(source[0]) if data is None else data
+        finally:
+            src.close()
         if self.on_append is not None:
             self.on_append(values)
         self.appended = i + 1
-        if self.obs_chunk is not None and self.appended < self.n_chunks:
-            self._dst.sync()    # compress the HDF5 chunks this chunk completed, now
+
+
+def _h5_open(path, mode):
+    """An HDF5 file (h5py low-level ``FileID``) whose close also closes its open objects."""
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
+    return h5py.h5f.open(os.fsencode(path), mode, fapl=fapl)
+
+
+def _h5_variable(fid, name: str) -> tuple:
+    """(dataset id, HDF5 chunk shape or None, filter pipeline, dtype) of variable ``name``."""
+    import h5py
+
+    dsid = h5py.h5d.open(fid, name.encode())
+    dcpl = dsid.get_create_plist()
+    chunks = dcpl.get_chunk() if dcpl.get_layout() == h5py.h5d.CHUNKED else None
+    filters = tuple(dcpl.get_filter(k)[:3] for k in range(dcpl.get_nfilters()))
+    return dsid, chunks, filters, dsid.dtype
+
+
+def _h5_read(dsid) -> np.ndarray:
+    import h5py
+
+    out = np.empty(dsid.shape, dtype=dsid.dtype)
+    dsid.read(h5py.h5s.ALL, h5py.h5s.ALL, out)
+    return out
+
+
+def _copy_hdf5_variable(src: tuple, dst: tuple, axis: int, start: int, last: bool):
+    """Copy a chunk file's variable ``src`` into the results file's ``dst`` (both from
+    :func:`_h5_variable`) at offset ``start`` along ``axis`` (``obs``); ``last``: ``src``
+    ends ``dst``.
+
+    When both are chunked alike (chunk shape, filters, dtype) and ``start`` is on ``dst``'s
+    chunk grid, the stored (compressed) HDF5 chunks are copied as they are and None is
+    returned. A chunk reaching past the end of ``src`` (HDF5 stores edge chunks full-size,
+    padded) qualifies only when ``src`` is the last: its padding then falls past the end of
+    ``dst`` too. Otherwise the values are read, written and returned.
+    """
+    import h5py
+
+    sid, c = src[0], src[1]
+    did = dst[0]
+    raw = c is not None and src[1:] == dst[1:] and start % c[axis] == 0
+    if raw:
+        infos = [sid.get_chunk_info(k) for k in range(sid.get_num_chunks())]
+        raw = last or all(o.chunk_offset[axis] + c[axis] <= sid.shape[axis] for o in infos)
+    if raw:
+        for info in infos:
+            mask, chunk = sid.read_direct_chunk(info.chunk_offset)
+            offset = list(info.chunk_offset)
+            offset[axis] += start
+            did.write_direct_chunk(tuple(offset), chunk, mask)
+        return None
+    data = _h5_read(sid)
+    index = [slice(None)] * data.ndim
+    index[axis] = slice(start, start + data.shape[axis])
+    h5py.Dataset(did)[tuple(index)] = data
+    return data

@@ -29,12 +29,14 @@ killed writes and refuses a manifest that does not match the current run.
 Finished chunks are appended to the results file in chunk order as soon as they and the
 chunks before them exist (:class:`results.ChunkMerge`: a temp file beside the output, renamed
 onto it atomically at the end; chunk slice by chunk slice, so memory stays bounded by one chunk
-whatever the mission length). The file is stored in HDF5 chunks of ``survey.chunk_shots``
-observations, so each appended chunk is compressed at once: with ``workers=N`` this process
-does it while the workers compute later chunks (on a given ``scheduler``, whose workers may be
-threads of this process, after the last chunk: netCDF calls must not run in two threads at
-once). The summary's first pass reads the chunks as they are appended. When every chunk is in,
-the file is renamed into place, the summary is finished and the chunk directory is removed.
+whatever the mission length). The results file is stored in HDF5 chunks of
+``survey.chunk_shots`` observations, and each chunk file is written compressed in that layout
+by the process that computed it, so appending copies its compressed HDF5 chunks as they are:
+with ``workers=N`` this process does it while the workers compute later chunks (on a given
+``scheduler``, whose workers may be threads of this process, after the last chunk: netCDF
+calls must not run in two threads at once). The summary's first pass reads the chunks as they
+are appended. When every chunk is in, the file is renamed into place, the summary is finished
+and the chunk directory is removed.
 
 ``workers=N`` (N > 1) runs the chunks on a ``dask.distributed.LocalCluster(n_workers=N,
 threads_per_worker=1, processes=True)``; ``scheduler=ADDRESS`` on an existing cluster (the
@@ -327,10 +329,11 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
     meas = _measure(config, scene, geom, seq, progress)
     per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(geom, meas).items()}
     ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created)
-    # uncompressed: a temporary file, the merge compresses the results file. The directory is
-    # not created here: a straggler of a run that is over cannot leave a manifest-less chunk.
+    # Compressed here, in the results file's HDF5 chunks: the merge copies them as they are.
+    # The directory is not created here: a straggler of a run that is over cannot leave a
+    # manifest-less chunk.
     return ChunkWriter(job.chunk_dir, create=False).write(index, ds, overwrite=True,
-                                                          compress=False)
+                                                          obs_chunk=plan.chunk_shots)
 
 
 def _dask_run_chunk(job: ChunkJob, index: int) -> str:
@@ -920,8 +923,8 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     as soon as it and the chunks before it exist, then the end of the merge, the summary and
     the removal of the chunk directory.
 
-    The results file is stored in HDF5 chunks of ``survey.chunk_shots`` observations, so each
-    appended chunk is compressed right away (see the module docstring).
+    The results file is stored in HDF5 chunks of ``survey.chunk_shots`` observations, as the
+    chunk files are: appending copies their compressed chunks (see the module docstring).
     ``timings["chunk_appends_s"]`` is the part of ``chunks_s`` spent appending."""
     sv = config.survey
     _keep_freed_memory()    # before a local cluster forks its workers: they inherit it

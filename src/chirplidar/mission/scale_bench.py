@@ -33,11 +33,13 @@ def bench_scale(mission=None, overrides=(), *, workers: int = 2, repeats: int = 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
     mission = Path(mission) if mission is not None else default_mission_path(MISSION_NAME)
-    # Untimed: the terrain cache and the imports, dask.array (xarray imports it) and
-    # dask.distributed (a serial run's first chunk file write asks it for a client).
+    # Untimed: the terrain cache and the imports, dask.array (xarray imports it),
+    # dask.distributed (a serial run's first chunk file write asks it for a client) and h5py
+    # (the merge's).
     prepare(mission, overrides=list(overrides))
     xr.Variable(("obs",), [0.0])
     import dask.distributed  # noqa: F401
+    import h5py  # noqa: F401
     pairs = []
     identical = True
     with tempfile.TemporaryDirectory(prefix="chirplidar-scale-") as tmp:
