@@ -22,47 +22,60 @@ def ch5_path():
 
 
 FIELD = ROOT / "missions" / "thesis_field_instrument.toml"
-FLAT_SNOW = 'source = "flat"\n[terrain.flat]\nheight_m = 100.0\nmaterial = "snow"'
+FLAT_SNOW = 'flat height_m = 100.0\nmaterial = "snow"'
+TWO_BEAMS = 'pattern = "custom"\noff_nadir_deg = [0.0, 20.0]\nazimuth_deg = [90.0, 90.0]'
 
 
-def write_flat_uav_mission(tmp: Path, name: str, *, altitude_m: float, beams: str, prf: float,
-                           stop: float, subrays: int, effects: str = "[]",
-                           terrain: str = FLAT_SNOW, extends: Path = FIELD) -> Path:
-    """A UAV line (1.6 km along grid x at ``altitude_m``, no jitter) over a 4 km square scene
-    (EPSG:3413, 50 m grid, no atmosphere) in ``tmp``: the mission file's path. ``terrain`` is the
-    ``[terrain]`` table's source line and its sub-table (flat snow 100 m high by default)."""
-    source, _, sub = terrain.partition("\n")
-    (tmp / f"{name}_scene.toml").write_text(f"""
+def write_scene(tmp: Path, name: str, terrain: str, *, epsg: int = 3413, lat=69.0, lon=-49.0,
+                size=4000.0, res=50.0, effects="[]", stem: str | None = None) -> Path:
+    """A square scene file ``<stem or name>.toml`` in ``tmp`` (no atmosphere): ``terrain`` is
+    the terrain source and its table's lines, e.g. ``'flat height_m = 100.0\nmaterial =
+    "snow"'``."""
+    p = tmp / f"{stem or name}.toml"
+    source, params = terrain.split(" ", 1)
+    p.write_text(f"""
 name = "{name}"
-epsg = 3413
+epsg = {epsg}
 effects = {effects}
 [terrain]
-{source}
-center_lat_deg = 69.0
-center_lon_deg = -49.0
-size_x_m = 4000.0
-size_y_m = 4000.0
-resolution_m = 50.0
-{sub}
+source = "{source}"
+center_lat_deg = {lat}
+center_lon_deg = {lon}
+size_x_m = {size}
+size_y_m = {size}
+resolution_m = {res}
+[terrain.{source}]
+{params}
 [atmosphere]
 cn2_profile = "none"
 extinction_per_m = 0.0
 scale_height_m = 1200.0
 """)
-    mission = tmp / f"{name}.toml"
-    mission.write_text(f"""
+    return p
+
+
+def write_uav_mission(tmp: Path, scene: Path, name: str = "m", *, altitude=1000.0,
+                      mode="absolute", beams=TWO_BEAMS, waypoints="[[-800.0, 0.0], [800.0, 0.0]]",
+                      polygon=None, extra="", extends=FIELD, stop="10.0", subrays=7,
+                      prf=20.0) -> Path:
+    """A UAV survey ``<name>.toml`` in ``tmp`` over ``scene`` (no jitter, link tier): the
+    ``waypoints`` line, or a lawnmower over ``polygon`` (lines 200 m apart along grid x)."""
+    path = (f"survey_polygon_m = {polygon}\nline_spacing_m = 200.0\nheading_deg = 90.0"
+            if polygon else f"waypoints_m = {waypoints}")
+    p = tmp / f"{name}.toml"
+    p.write_text(f"""
 extends = "{extends}"
 seed = 5
 [scene]
-file = "{name}_scene.toml"
+file = "{scene.name}"
 [platform]
 kind = "uav"
 [platform.uav]
 coordinates = "scene_centre"
-waypoints_m = [[-800.0, 0.0], [800.0, 0.0]]
+{path}
 speed_mps = 20.0
-altitude_m = {altitude_m}
-altitude_mode = "absolute"
+altitude_m = {altitude}
+altitude_mode = "{mode}"
 [attitude]
 roll_deg = 0.0
 pitch_deg = 0.0
@@ -78,5 +91,17 @@ stop_s = {stop}
 epoch_utc = "2026-07-01T00:00:00Z"
 detection_threshold_db = 10.0
 subrays_per_beam = {subrays}
+{extra}
 """)
-    return mission
+    return p
+
+
+def write_flat_uav_mission(tmp: Path, name: str, *, altitude_m: float, beams: str, prf: float,
+                           stop: float, subrays: int, effects: str = "[]",
+                           terrain: str = FLAT_SNOW, extends: Path = FIELD) -> Path:
+    """A UAV line (1.6 km along grid x at ``altitude_m``, no jitter) over a 4 km square scene
+    (EPSG:3413, 50 m grid, no atmosphere) in ``tmp``: the mission file's path. ``terrain`` as
+    :func:`write_scene`'s (flat snow 100 m high by default)."""
+    scene = write_scene(tmp, name, terrain, effects=effects, stem=f"{name}_scene")
+    return write_uav_mission(tmp, scene, name, altitude=altitude_m, beams=beams, prf=prf,
+                             stop=stop, subrays=subrays, extends=extends)

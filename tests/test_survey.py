@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import write_scene, write_uav_mission
 from pyproj import Transformer
 
 from chirplidar.cli import main
@@ -27,73 +28,8 @@ from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
 
 ROOT = Path(__file__).resolve().parents[1]
-INSTRUMENT = ROOT / "missions" / "thesis_field_instrument.toml"
 ICESAT = ROOT / "missions" / "icesat_like.toml"
 DATE = "2026-01-01T00:00:00Z"   # fixed date_created: identical files for identical runs
-
-
-def _scene(tmp: Path, name: str, terrain: str, *, epsg: int = 3413, lat=69.0, lon=-49.0,
-           size=4000.0, res=50.0, effects="[]") -> Path:
-    p = tmp / f"{name}.toml"
-    p.write_text(f"""
-name = "{name}"
-epsg = {epsg}
-effects = {effects}
-[terrain]
-source = "{terrain.split()[0]}"
-center_lat_deg = {lat}
-center_lon_deg = {lon}
-size_x_m = {size}
-size_y_m = {size}
-resolution_m = {res}
-[terrain.{terrain.split()[0]}]
-{terrain.split(' ', 1)[1]}
-[atmosphere]
-cn2_profile = "none"
-extinction_per_m = 0.0
-scale_height_m = 1200.0
-""")
-    return p
-
-
-def _uav_mission(tmp: Path, scene: Path, name: str = "m", *, altitude=1000.0, mode="absolute",
-                 beams='pattern = "custom"\noff_nadir_deg = [0.0, 20.0]\nazimuth_deg = [90.0, 90.0]',
-                 waypoints="[[-800.0, 0.0], [800.0, 0.0]]", polygon=None, extra="",
-                 extends=INSTRUMENT, stop="10.0", subrays=7) -> Path:
-    path = (f"survey_polygon_m = {polygon}\nline_spacing_m = 200.0\nheading_deg = 90.0"
-            if polygon else f"waypoints_m = {waypoints}")
-    p = tmp / f"{name}.toml"
-    p.write_text(f"""
-extends = "{extends}"
-seed = 5
-[scene]
-file = "{scene.name}"
-[platform]
-kind = "uav"
-[platform.uav]
-coordinates = "scene_centre"
-{path}
-speed_mps = 20.0
-altitude_m = {altitude}
-altitude_mode = "{mode}"
-[attitude]
-roll_deg = 0.0
-pitch_deg = 0.0
-yaw_deg = 0.0
-jitter_rad_rms = 0.0
-[beams]
-{beams}
-[survey]
-tier = "link"
-prf_hz = 20.0
-start_s = 0.0
-stop_s = {stop}
-epoch_utc = "2026-07-01T00:00:00Z"
-detection_threshold_db = 10.0
-subrays_per_beam = {subrays}
-{extra}
-""")
-    return p
 
 
 # "Noise off": 60 dB more signal lowers the Cramer-Rao range scatter 1000-fold (to < 0.1 mm).
@@ -128,8 +64,8 @@ def _geodetic_range(x, y, h, az, off, epsg, h_target):
 @pytest.fixture(scope="module")
 def flat_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("flat")
-    scene = _scene(tmp, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
-    mission = _uav_mission(tmp, scene, altitude=1100.0)
+    scene = write_scene(tmp, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
+    mission = write_uav_mission(tmp, scene, altitude=1100.0)
     res = run_mission(mission, overrides=QUIET, out=tmp / "flat.nc", cache_dir=tmp / "cache",
                       date_created=DATE)
     return tmp, mission, res
@@ -197,10 +133,10 @@ def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     # range resolution of the 200 MHz chirp.
     wide = ["channel.divergence_half_angle_rad=0.01", "processing.averages=1",
             "survey.prf_hz=50", *QUIET]
-    sloped = _scene(tmp_path, "slope", f'sloped slope_deg = {slope}\nazimuth_deg = 90.0\n'
+    sloped = write_scene(tmp_path, "slope", f'sloped slope_deg = {slope}\nazimuth_deg = 90.0\n'
                     'height_m = 100.0\nmaterial = "snow"')
     beams = 'pattern = "nadir"'
-    ms = _uav_mission(tmp_path, sloped, "ms", altitude=1100.0, beams=beams, stop="0.4",
+    ms = write_uav_mission(tmp_path, sloped, "ms", altitude=1100.0, beams=beams, stop="0.4",
                       subrays=128)
     config, scene, plan = prepare(ms, overrides=wide, cache_dir=tmp_path / "c")
     g = chunk_geometry(plan, scene, config, plan.t_s, np.random.SeedSequence(1), 128)
@@ -263,7 +199,7 @@ def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     assert w_slope == pytest.approx(w_ref, rel=0.15)  # ... to the footprint's beat spread
     assert w_slope < spread_f + w_flat
     # The survey's rf tier runs the same chain per shot and reports each shot's width.
-    ms1 = _uav_mission(tmp_path, sloped, "ms1", altitude=1100.0, beams=beams, stop="0.1")
+    ms1 = write_uav_mission(tmp_path, sloped, "ms1", altitude=1100.0, beams=beams, stop="0.1")
     run = run_mission(ms1, overrides=[*wide, "survey.subrays_per_beam=19",
                                       "simulation.sample_rate_hz=1.2e9"], tier="rf",
                       out=tmp_path / "rf.nc", cache_dir=tmp_path / "c", date_created=DATE)
@@ -272,7 +208,7 @@ def test_sloped_plane_spread_and_rf_broadening(tmp_path):
 
 
 def test_satellite_range_against_pyproj(tmp_path):
-    scene = _scene(tmp_path, "ant", 'flat height_m = 500.0\nmaterial = "snow"', epsg=3031,
+    scene = write_scene(tmp_path, "ant", 'flat height_m = 500.0\nmaterial = "snow"', epsg=3031,
                    lat=-67.75, lon=62.9, size=30000.0, res=1000.0)
     m = tmp_path / "sat.toml"
     m.write_text(f'extends = "{ICESAT}"\n[scene]\nfile = "{scene.name}"\n')
@@ -316,23 +252,23 @@ def test_existing_output_needs_overwrite(flat_run, capsys):
 
 
 def test_self_intersecting_polygon_is_refused(tmp_path):
-    scene = _scene(tmp_path, "flat3", 'flat height_m = 100.0\nmaterial = "snow"')
+    scene = write_scene(tmp_path, "flat3", 'flat height_m = 100.0\nmaterial = "snow"')
     bowtie = "[[-500.0, -500.0], [500.0, 500.0], [500.0, -500.0], [-500.0, 500.0]]"
-    m = _uav_mission(tmp_path, scene, polygon=bowtie)
+    m = write_uav_mission(tmp_path, scene, polygon=bowtie)
     with pytest.raises(ConfigError, match=r"m\.toml.*platform\.uav\.survey_polygon_m.*self-intersect"):
         run_mission(m, out=tmp_path / "x.nc", cache_dir=tmp_path / "c")
     assert not (tmp_path / "x.nc").exists()
 
 
 def test_path_that_misses_the_scene(tmp_path):
-    scene = _scene(tmp_path, "flat4", 'flat height_m = 100.0\nmaterial = "snow"')
-    m = _uav_mission(tmp_path, scene, waypoints="[[10000.0, 10000.0], [12000.0, 10000.0]]")
+    scene = write_scene(tmp_path, "flat4", 'flat height_m = 100.0\nmaterial = "snow"')
+    m = write_uav_mission(tmp_path, scene, waypoints="[[10000.0, 10000.0], [12000.0, 10000.0]]")
     with pytest.raises(ConfigError, match=r"m\.toml.*\[platform\].*never crosses the scene"):
         run_mission(m, out=tmp_path / "x.nc", cache_dir=tmp_path / "c")
 
 
 def test_missing_scene_file_named(tmp_path):
-    m = _uav_mission(tmp_path, tmp_path / "nowhere.toml")
+    m = write_uav_mission(tmp_path, tmp_path / "nowhere.toml")
     with pytest.raises(ConfigError, match=r"scene\.file: nowhere\.toml does not exist"):
         run_mission(m, out=tmp_path / "x.nc")
 

@@ -36,10 +36,9 @@ from chirplidar.tiers.budget import make_budget
 from chirplidar.tiers.echoes import Echoes
 from chirplidar.tiers.link import simulate_link, static_phase_factor
 from chirplidar.units import SPEED_OF_LIGHT_M_S
-from conftest import FIELD, FLAT_SNOW, write_flat_uav_mission
+from conftest import FIELD, FLAT_SNOW, TWO_BEAMS, write_flat_uav_mission
 
 # FIELD: missions/thesis_field_instrument.toml (1 speckle cell, K = 94, random carrier phase)
-TWO_BEAMS = 'pattern = "custom"\noff_nadir_deg = [0.0, 20.0]\nazimuth_deg = [90.0, 90.0]'
 # 300 m range: a 10 MHz beat, so a 20 MHz band (a short baseband record) holds it; -20 dB of
 # attenuation gives ~45 dB of optimum-phase SNR: deep fades stay far above the noise.
 FAST = ["processing.averages=1", "processing.peak_search_max_hz=20e6",
