@@ -206,6 +206,47 @@ def test_workers_identical_to_serial(small, tmp_path):
     assert "cluster_start_s" in par.timings
 
 
+def test_scale_bench_pairs_alternate_and_agree(small, monkeypatch):
+    """``bench --what scale`` on the small mission: pairs of full runs whose order alternates,
+    identical files, and the speedup is the median of the pairs' ratios."""
+    from chirplidar.mission import runner, scale_bench
+
+    monkeypatch.setenv("CHIRPLIDAR_CACHE", str(small.cache))
+    order = []
+    real_run = runner.run_mission
+
+    def spy(*args, **kwargs):
+        order.append(kwargs["workers"])
+        return real_run(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "run_mission", spy)
+    lines = []
+    res = scale_bench.bench_scale(small.mission, repeats=2, progress=lines.append)
+    assert order == [None, 2, 2, None]
+    assert res["identical"] is True
+    assert res["shots"] == small.serial.summary["shots"]
+    assert len(res["pair_speedups"]) == 2 and len(lines) == 2
+    assert res["speedup"] == pytest.approx(np.median(res["pair_speedups"]), rel=1e-12)
+    assert "cluster_start_s" in res["workers_parts_s"]
+    assert "pairs of runs" in scale_bench.format_scale(res)
+
+
+def test_scale_bench_pair_statistics():
+    """Reference: hand computation. Ratios 4/2, 5/2.5, 6/4 = 2, 2, 1.5: median 2; numpy's
+    linear quartiles of (1.5, 2, 2) are 1.75 and 2; the time medians are 5 and 2.5 s."""
+    from chirplidar.mission.scale_bench import pair_statistics
+
+    st = pair_statistics([4.0, 5.0, 6.0], [2.0, 2.5, 4.0])
+    assert st["serial_s"] == 5.0 and st["workers_s"] == 2.5
+    assert st["speedup"] == pytest.approx(2.0)
+    assert st["speedup_quartiles"] == pytest.approx([1.75, 2.0])
+    assert st["pair_speedups"] == pytest.approx([2.0, 2.0, 1.5])
+    with pytest.raises(ValueError, match="one time per pair"):
+        pair_statistics([4.0, 5.0], [2.0])
+    with pytest.raises(ValueError, match="finite and > 0"):
+        pair_statistics([4.0], [0.0])
+
+
 def test_scheduler_address_with_threaded_workers(small, tmp_path):
     """``scheduler=ADDRESS`` runs on an existing cluster: here one in-process worker with two
     threads (chunks of one process at once: shared preparation cache, dask's configuration

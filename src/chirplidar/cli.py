@@ -293,7 +293,8 @@ def cmd_bench(args) -> int:
     if args.what == "scale":
         from .mission.scale_bench import bench_scale, format_scale
 
-        res = bench_scale(args.mission, args.set or [], repeats=min(args.repeats, 3))
+        say = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+        res = bench_scale(args.mission, args.set or [], repeats=args.repeats, progress=say)
         if args.json:
             print(_dump_json({k: res[k] for k in ("serial_s", "workers_2_s", "speedup")}))
         else:
@@ -435,7 +436,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mission file (default missions/thesis_bench.toml)")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key")
-    p.add_argument("--repeats", type=int, default=11, help="timed runs; the median is reported")
+    p.add_argument("--repeats", type=int, default=11,
+                   help="timed runs; the median is reported (scale: pairs of runs)")
     p.add_argument("--out", default="outputs", metavar="DIR",
                    help="--what accuracy (the accuracy-versus-time study of every fidelity "
                         "knob, on missions/thesis_ch5_bench.toml unless --mission): folder for "
