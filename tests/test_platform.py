@@ -50,8 +50,10 @@ def test_uav_above_ground_follows_terrain():
 
 def _check_lawnmower(poly_xy, spacing, heading):
     lines = P.lawnmower_lines(poly_xy, spacing, heading)
-    wp = P.lawnmower(poly_xy, spacing, heading)
+    wp, legs = P.lawnmower(poly_xy, spacing, heading)
     assert wp.shape == (2 * len(lines), 2)
+    # legs 2i are the lines (numbered in flight order), legs 2i + 1 the transits between them
+    assert legs.tolist() == [i // 2 if i % 2 == 0 else -1 for i in range(2 * len(lines) - 1)]
     u = np.array([np.sin(heading), np.cos(heading)])  # clockwise from grid north
     nrm = np.array([-u[1], u[0]])
     offsets = []
@@ -76,6 +78,19 @@ def test_lawnmower_concave_rotated():
     _check_lawnmower(L, 40.0, np.radians(30.0))
 
 
+def test_uav_track_index_follows_the_legs():
+    # three legs: line 0, a transit (-1), line 1; a repeated waypoint (zero-length leg) is dropped
+    # with its track entry, so the legs keep their tracks
+    w = np.array([[0, 0, 50], [100, 0, 50], [100, 0, 50], [100, 20, 50], [0, 20, 50]], float)
+    path = P.UavPath(w, 10.0, segment_tracks=np.array([0, 7, -1, 1]))
+    t = np.array([0.0, 5.0, 10.5, 11.9, 12.5, 21.9])  # s; legs end at 10, 12 and 22 s
+    assert path.track_index(t).tolist() == [0, 0, -1, -1, 1, 1]
+    # default: each leg its own track
+    assert P.UavPath(w, 10.0).track_index(np.array([1.0, 11.0, 15.0])).tolist() == [0, 2, 3]
+    with pytest.raises(ValueError, match="segment_tracks"):
+        P.UavPath(w, 10.0, segment_tracks=np.array([0, 1]))
+
+
 def test_lawnmower_self_intersecting_raises():
     bowtie = np.array([[0, 0], [100, 100], [100, 0], [0, 100]], float)
     with pytest.raises(ValueError, match="polygon"):
@@ -94,7 +109,7 @@ def test_aircraft_semicircle_turn_and_continuity():
     t = np.linspace(1000.0 / v, (1000.0 + np.pi * r) / v, 50)
     p = ac.positions(t)
     assert np.allclose(np.hypot(p[:, 0] - 1000.0, p[:, 1] - 200.0), r)
-    assert np.all(ac.line_index(t[1:-1]) == -1)
+    assert np.all(ac.track_index(t[1:-1]) == -1)
     assert np.allclose(p[:, 2], 500.0)
 
 

@@ -41,6 +41,7 @@ from chirplidar.mission.runner import (
     _per_shot,
     chunk_dir_for,
     prepare,
+    results_dataset,
     run_mission,
     summarise,
 )
@@ -73,8 +74,6 @@ def small(tmp_path_factory):
 
 def _in_memory_run(mission, out, cache):
     """The code path before chunk files (reference)."""
-    from chirplidar import __version__
-    from chirplidar.mission.runner import NO_SURFACE_CODE
 
     config, scene, plan = prepare(mission, cache_dir=cache)
     sv = config.survey
@@ -83,19 +82,9 @@ def _in_memory_run(mission, out, cache):
     for i in range(plan.n_chunks):
         geom = chunk_geometry(plan, scene, config, plan.chunk_times(i), seeds[i],
                               sv.subrays_per_beam)
-        parts.append(_per_shot(geom, measure.measure_link(config, scene, geom, seeds[i])))
+        parts.append(_per_shot(config, geom, measure.measure_link(config, scene, geom, seeds[i])))
     per_shot = {k: np.concatenate([p[k] for p in parts], axis=0).T for k in parts[0]}
-    per_shot["beam"] = np.arange(plan.beams.n_beams)
-    materials = {NO_SURFACE_CODE: "no_surface",
-                 **{c: name for c, name in enumerate(scene.terrain.material_names)}}
-    ds = build_dataset(per_shot, epsg=scene.epsg, epoch_iso=sv.epoch_utc,
-                       config_toml=_config_toml(config), seed=config.seed,
-                       software_version=__version__, materials=materials,
-                       title=f"chirplidar survey: {Path(mission).stem} over {scene.name}",
-                       date_created=DATE)
-    ds.attrs.update({"tier": sv.tier, "mission_file": str(Path(mission)),
-                     "scene_file": str(scene.path), "scene_configuration": scene.text,
-                     "platform": config.platform.kind, "beam_pattern": config.beams.pattern})
+    ds = results_dataset(per_shot, config, scene, str(mission), DATE)
     write_netcdf(ds, out, obs_chunk=plan.chunk_shots)   # a run's file: HDF5 chunks of a chunk
     return ds
 

@@ -306,3 +306,61 @@ def test_turbulence_sees_the_scene_profile():
     r0_scene = float(scene.fried_parameter_m(lam, z_g, z_p, 0.0, wave="spherical"))
     assert cn2 > 0
     assert fried_parameter(cn2, lam, r_med, wave="spherical") == pytest.approx(r0_scene, rel=1e-3)
+
+
+def test_lawnmower_tracks_polygon_and_height_sigma(tmp_path):
+    """A lawnmower run carries its lines as ``track`` (-1 on the transits), its survey polygon as
+    WKT in projected metres, and ``h_li_sigma``. Reference for the sigma: the link tier draws
+    each detected shot's beat around the true one with the Cramer-Rao spread (Rife & Boorstyn
+    1974) that ``h_li_sigma`` states, so over many nadir shots on flat ground (height error =
+    range error, no footprint spread) the measured scatter equals the predicted one within the
+    sampling error of a standard deviation (1/sqrt(2 N))."""
+    from shapely import wkt
+
+    scene = write_scene(tmp_path, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
+    poly = "[[-500.0, -300.0], [500.0, -300.0], [500.0, 300.0], [-500.0, 300.0]]"
+    mission = write_uav_mission(tmp_path, scene, polygon=poly, altitude=300.0, mode="above_ground",
+                                beams='pattern = "nadir"', stop="130.0", prf=50.0, subrays=1)
+    ds = run_mission(mission, out=tmp_path / "lm.nc", date_created=DATE).dataset
+    # lines 200 m apart over 600 m: 3 lines of 1000 m (50 s each at 20 m/s), 2 transits of 10 s
+    t = ds["delta_time"].values[0]
+    track = ds["track"].values[0]
+    expected = np.select([t < 50, t < 60, t < 110, t < 120], [0, -1, 1, -1], 2)
+    assert np.array_equal(track, expected)
+    # the polygon is given about the scene centre, the centre of the (square) scene extent
+    x0, y0, x1, y1 = wkt.loads(ds.attrs["survey_polygon_wkt"]).bounds
+    ex0, ey0, ex1, ey1 = wkt.loads(ds.attrs["scene_extent_wkt"]).bounds
+    assert (x1 - x0, y1 - y0) == pytest.approx((1000.0, 600.0))
+    assert (ex1 - ex0, ey1 - ey0) == pytest.approx((4000.0, 4000.0))
+    assert (0.5 * (x0 + x1), 0.5 * (y0 + y1)) == pytest.approx(
+        (0.5 * (ex0 + ex1), 0.5 * (ey0 + ey1)), abs=1e-6)
+    det = ds["detected"].values == 1
+    sig = ds["h_li_sigma"].values
+    assert np.all(np.isnan(sig[~det])) and np.all(sig[det] > 0)
+    err = (ds["h_li"] - ds["h_li_true"]).values[det]
+    n = err.size
+    predicted = np.sqrt(np.mean(sig[det] ** 2))
+    assert n > 3000
+    assert np.std(err) == pytest.approx(predicted, rel=4 / np.sqrt(2 * n))
+
+
+def test_scene_keys_in_the_mission(tmp_path):
+    """``scene.<key>`` in a mission (or --set) changes that key of the scene file for this run;
+    a misspelt one is an error naming it."""
+    from chirplidar.mission.runner import prepare
+
+    scene = write_scene(tmp_path, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
+    mission = write_uav_mission(tmp_path, scene, altitude=300.0, mode="above_ground",
+                                beams='pattern = "nadir"', stop="2.0", subrays=1)
+    _, sc, _ = prepare(mission, overrides=["scene.terrain.flat.material=blue_ice",
+                                           "scene.terrain.flat.height_m=250.0"])
+    assert {sc.material_names[c] for c in np.unique(sc.terrain.face_materials)} == {"blue_ice"}
+    assert sc.height_range_m == pytest.approx((250.0, 250.0))
+    with pytest.raises(ConfigError, match="terrain.flat.hieght_m"):
+        prepare(mission, overrides=["scene.terrain.flat.hieght_m=250.0"])
+    ds = run_mission(mission, out=tmp_path / "m.nc", date_created=DATE,
+                     overrides=["scene.terrain.flat.material=blue_ice"]).dataset
+    assert 'material = "blue_ice"' in ds.attrs["configuration"]
+    names = dict(zip(ds["surface_type"].attrs["flag_values"].tolist(),
+                     ds["surface_type"].attrs["flag_meanings"].split()))
+    assert {names[c] for c in np.unique(ds["surface_type"].values)} == {"blue_ice"}

@@ -83,11 +83,30 @@ def _unknown_key_message(key: str, source: str) -> str:
     return f"{source}: unknown key '{key}'{hint}"
 
 
+SCENE_PREFIX = "scene."
+
+
+def _is_scene_override(key: str) -> bool:
+    """Whether a dotted key changes the scene file (``scene.<scene key>``, not ``scene.file``):
+    accepted here, validated by the scene loader (see :func:`scene_overrides`)."""
+    return key.startswith(SCENE_PREFIX) and key != "scene.file" and len(key) > len(SCENE_PREFIX)
+
+
+def _known(key: str) -> bool:
+    return key in PROJECT_KEYS or _is_scene_override(key)
+
+
+def scene_overrides(config: MissionConfig) -> dict[str, Any]:
+    """The mission's changes to its scene file: scene dotted key -> value (empty if none)."""
+    return {k[len(SCENE_PREFIX):]: v for k, v in config_flat(config).items()
+            if _is_scene_override(k)}
+
+
 def _canonical(flat: Mapping[str, Any], source: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in flat.items():
         proj = resolve_key(key)
-        if proj not in PROJECT_KEYS:
+        if not _known(proj):
             raise ConfigError(_unknown_key_message(key, source))
         if proj in out:
             raise ConfigError(f"{source}: key '{proj}' given twice (once as '{key}')")
@@ -172,7 +191,7 @@ def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[
     merged = dict(flat)
     for key, value in items:
         proj = resolve_key(key)
-        if proj not in PROJECT_KEYS:
+        if not _known(proj):
             raise ConfigError(_unknown_key_message(key, "--set"))
         merged[proj] = value
     return build_config(merged, source)

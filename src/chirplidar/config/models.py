@@ -401,7 +401,11 @@ XY = tuple[float, float]
 
 
 class SceneRef(_Model):
-    """The scene the mission flies over."""
+    """The scene the mission flies over. Any other key of the section changes the scene file's
+    key of that name for this mission (``[scene.atmosphere] ground_cn2_m_minus_2_3 = 1e-13``,
+    ``--set scene.terrain.flat.material=blue_ice``); the scene loader validates them."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, validate_default=True)
 
     file: str = Field(description="scene TOML file, relative to the mission file (scenes/*.toml)")
 

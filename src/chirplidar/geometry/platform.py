@@ -95,24 +95,36 @@ class UavPath:
         height above ground (``"above_ground"``; then ``ground_height_m`` is required: a callable
         ``(x, y) -> z`` [m] of arrays, e.g. a terrain's height sampler).
     speed_mps : along-path speed (measured along the waypoint polyline).
+    segment_tracks : optional (k - 1,) integer track of each leg (waypoint i to i + 1): a survey
+        line's number, or -1 for a transit between lines (see :func:`lawnmower`); by default
+        every leg is its own track, numbered from 0. See :meth:`track_index`.
     """
 
     waypoints_m: np.ndarray
     speed_mps: float
     altitude_mode: str = "absolute"
     ground_height_m: Callable | None = None
+    segment_tracks: np.ndarray | None = None
     frame: str = field(default="projected", init=False)
 
     def __post_init__(self):
         w = _checks.real_array("waypoints_m", self.waypoints_m)
         if w.ndim != 2 or w.shape[1] != 3 or w.shape[0] < 2:
             raise ValueError(f"waypoints_m must have shape (k >= 2, 3), got {w.shape}")
+        if self.segment_tracks is None:
+            tracks = np.arange(w.shape[0] - 1)
+        else:
+            tracks = np.asarray(self.segment_tracks)
+            if tracks.shape != (w.shape[0] - 1,) or not np.issubdtype(tracks.dtype, np.integer):
+                raise ValueError(f"segment_tracks must be {w.shape[0] - 1} integers (one per "
+                                 f"leg), got {tracks.dtype} {tracks.shape}")
         seg = np.diff(w, axis=0)
-        keep = np.concatenate([[True], np.linalg.norm(seg, axis=1) > 0.0])
-        w = w[keep]
+        moves = np.linalg.norm(seg, axis=1) > 0.0
+        w = w[np.concatenate([[True], moves])]
         if w.shape[0] < 2:
             raise ValueError("waypoints_m must contain at least two distinct points")
         object.__setattr__(self, "waypoints_m", w)
+        object.__setattr__(self, "segment_tracks", tracks[moves].astype(np.int64))
         object.__setattr__(self, "speed_mps", _checks.positive("speed_mps", self.speed_mps))
         if self.altitude_mode not in ("absolute", "above_ground"):
             raise ValueError(f"altitude_mode must be 'absolute' or 'above_ground', "
@@ -131,16 +143,24 @@ class UavPath:
     def duration_s(self) -> float:
         return self.length_m / self.speed_mps
 
-    def _locate(self, t_s):
+    def _segment(self, t_s):
         t = _times("t_s", t_s)
         if np.any((t < 0.0) | (t > self.duration_s * (1 + 1e-12))):
             raise ValueError(f"t_s must lie in [0, duration_s = {self.duration_s}] s")
         s = t * self.speed_mps
-        i = np.clip(np.searchsorted(self._cum_m, s, side="right") - 1, 0, len(self._cum_m) - 2)
+        return np.clip(np.searchsorted(self._cum_m, s, side="right") - 1, 0,
+                       len(self._cum_m) - 2), s
+
+    def _locate(self, t_s):
+        i, s = self._segment(t_s)
         w = self.waypoints_m
         seg = w[i + 1] - w[i]
         u = seg / np.linalg.norm(seg, axis=1, keepdims=True)
         return w[i] + u * (s - self._cum_m[i])[:, None], u * self.speed_mps
+
+    def track_index(self, t_s) -> np.ndarray:
+        """(n,) track flown at ``t_s``: the leg's entry of ``segment_tracks`` (-1: a transit)."""
+        return self.segment_tracks[self._segment(t_s)[0]]
 
     def positions(self, t_s) -> np.ndarray:
         """(n, 3) scene-frame positions [m] at times ``t_s`` (n,) [s] since the path start."""
@@ -223,14 +243,18 @@ def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     return lines
 
 
-def lawnmower(polygon_xy, line_spacing_m, heading_rad) -> np.ndarray:
-    """Waypoints ``(2 m, 2)`` of a lawnmower covering the polygon: rows 2i, 2i+1 are line i.
+def lawnmower(polygon_xy, line_spacing_m, heading_rad) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoints ``(2 m, 2)`` of a lawnmower covering the polygon (rows 2i, 2i+1 are line i)
+    and the track of each of their ``2 m - 1`` legs: leg 2i is line i, leg 2i+1 the transit to
+    the next line (-1), as :class:`UavPath` takes them (``segment_tracks``).
 
     See :func:`lawnmower_lines` for the conventions. A self-intersecting polygon raises
     ValueError naming ``polygon``.
     """
     lines = lawnmower_lines(polygon_xy, line_spacing_m, heading_rad)
-    return np.array([p for ln in lines for p in ln], dtype=float).reshape(-1, 2)
+    legs = np.full(2 * len(lines) - 1, -1, dtype=np.int64)
+    legs[::2] = np.arange(len(lines))
+    return np.array([p for ln in lines for p in ln], dtype=float).reshape(-1, 2), legs
 
 
 # --------------------------------------------------------------------------------------------
@@ -368,7 +392,7 @@ class AircraftLines:
         """(n, 3) velocities [m/s] (horizontal, tangent to the path)."""
         return self._eval(t_s)[1]
 
-    def line_index(self, t_s) -> np.ndarray:
+    def track_index(self, t_s) -> np.ndarray:
         """(n,) index of the survey line flown at ``t_s``; -1 during turns."""
         return self._eval(t_s)[2]
 

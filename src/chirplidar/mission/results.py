@@ -26,9 +26,9 @@ Missing values
 Float variables are written with ``_FillValue = NaN``. CF allows a NaN fill value for floating
 point data; a NaN range, height, power, frequency, SNR or position means "no value for this shot"
 and the ``detected`` flag says why (below threshold, no surface in the beam). Flag variables
-(``detected``, ``surface_type``) and ``beam`` are integers with no fill value: every shot has one.
-``range_measured``, ``range_error`` and ``h_li`` should be NaN where ``detected != 1``; this
-module does not alter data to enforce it.
+(``detected``, ``surface_type``, ``track``) and ``beam`` are integers with no fill value: every
+shot has one. ``range_measured``, ``range_error``, ``h_li`` and ``h_li_sigma`` should be NaN
+where ``detected != 1``; this module does not alter data to enforce it.
 
 Mapping to thesis Table 4.10 (and the ``--json`` output of a shot)
 ------------------------------------------------------------------
@@ -47,7 +47,8 @@ The other Table 4.10 outputs (Pchrp, Ptx, Ne, Ns, Nt, d_offset, d_lo, d_hi, d_3d
 Navg) describe the instrument or the spectrum of one shot and are not stored per shot.
 
 ICESat-2 names used: ``delta_time``, ``latitude``, ``longitude``, ``h_li`` (ATL06 land-ice height
-above the WGS-84 ellipsoid; ``h_li_true`` is the same surface without measurement error).
+above the WGS-84 ellipsoid; ``h_li_true`` is the same surface without measurement error),
+``h_li_sigma`` (ATL06's expected error of ``h_li``; here the Cramer-Rao spread of one shot).
 """
 
 from __future__ import annotations
@@ -115,6 +116,8 @@ SCHEMA: tuple[VarSpec, ...] = (
     VarSpec("platform_y", "float64", "m", "projected y of the platform"),
     VarSpec("platform_altitude", "float64", "m",
             "platform height above the WGS-84 ellipsoid"),
+    VarSpec("track", "int32", "1", "survey line (UAV, aircraft) or pass (satellite) of the "
+            "shot; -1 in turns and transits between lines"),
     VarSpec("off_nadir_angle", "float64", "radian", "beam off-nadir pointing angle"),
     VarSpec("azimuth_angle", "float64", "radian",
             "beam pointing azimuth, clockwise from true north"),
@@ -131,6 +134,9 @@ SCHEMA: tuple[VarSpec, ...] = (
             "height_above_reference_ellipsoid"),
     VarSpec("h_li", "float64", "m", "measured surface height above the WGS-84 ellipsoid",
             "height_above_reference_ellipsoid", "h_li"),
+    VarSpec("h_li_sigma", "float64", "m",
+            "predicted 1-sigma precision of h_li: Cramer-Rao bound of the beat frequency at the "
+            "shot's SNR and 3 dB width", icesat2_name="h_li_sigma"),
     VarSpec("snr_db", "float64", "dB", "signal-to-noise ratio in the resolution bandwidth",
             thesis_name="SNR"),
     VarSpec("received_power", "float64", "W", "received optical signal power",

@@ -70,9 +70,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from shapely.geometry import Polygon, box
 
 from .. import __version__
-from ..config.loader import ConfigError, config_flat, config_with, load_mission
+from ..config.loader import (ConfigError, config_flat, config_with, load_mission,
+                             scene_overrides)
 from . import measure
 from .results import (
     NETCDF_LOCK,
@@ -82,7 +84,8 @@ from .results import (
     read_netcdf,
     write_bytes_atomic,
 )
-from .survey import check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey
+from .survey import (check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey,
+                     survey_polygon_xy)
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -160,7 +163,14 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
     if not scene_path.is_file():
         raise ConfigError(f"{src}: scene.file: {config.scene.file} does not exist "
                           f"(looked for {scene_path})")
-    scene = load_scene(scene_path, cache_dir=cache_dir)
+    changes = scene_overrides(config)
+    try:
+        scene = load_scene(scene_path, cache_dir=cache_dir, overrides=changes)
+    except ConfigError as exc:
+        if not changes:
+            raise
+        raise ConfigError(f"{exc} (with the mission's scene keys "
+                          f"{', '.join('scene.' + k for k in changes)})") from None
     try:
         config = config_with(config, {"effects.enabled": list(scene.effects)})
     except ConfigError as exc:
@@ -191,7 +201,29 @@ def _measure(config, scene, geom, seq, progress=None) -> dict:
     return meas
 
 
-def _per_shot(geom, meas) -> dict:
+def _height_sigma_m(config, geom, meas, r_meas, det) -> np.ndarray:
+    """(n, b) predicted 1-sigma error of the measured height of the detected shots (NaN
+    elsewhere): the Cramer-Rao spread of the beat frequency (Rife & Boorstyn 1974,
+    ``tiers.link.crb_sigma_f_hz``) at the shot's SNR, for a tone of the duration 0.886 / (3 dB
+    width) that its beat width implies, turned into range by c / (2 n kappa) and into height by
+    the height change per metre of range along the beam (its vertical component)."""
+    from ..tiers.budget import make_budget
+    from ..tiers.link import crb_sigma_f_hz
+    from ..units import SPEED_OF_LIGHT_M_S
+
+    width = meas["beat_width"]
+    ok = det & (width > 0)
+    snr = 10.0 ** (np.where(ok, meas["snr_db"], 0.0) / 10.0)
+    t_eff = 0.886 / np.where(ok, width, 1.0)
+    rate = make_budget(config).rate_hz_per_s
+    sigma_r = (crb_sigma_f_hz(snr, config.processing.rbw_hz, t_eff) * SPEED_OF_LIGHT_M_S
+               / (2.0 * config.channel.group_index * rate))
+    r = np.where(ok, r_meas, 0.0)
+    dz_dr = geom.point_at_range(r + 1.0)[..., 2] - geom.point_at_range(r)[..., 2]
+    return np.where(ok, sigma_r * np.abs(dz_dr), np.nan)
+
+
+def _per_shot(config, geom, meas) -> dict:
     """Schema variables (n, b) of one chunk (transposed to (b, n) when assembled)."""
     n, b = geom.range_true_m.shape
     hit = np.isfinite(geom.range_true_m)
@@ -207,6 +239,7 @@ def _per_shot(geom, meas) -> dict:
         "platform_x": np.broadcast_to(geom.platform_xyh[:, 0:1], (n, b)),
         "platform_y": np.broadcast_to(geom.platform_xyh[:, 1:2], (n, b)),
         "platform_altitude": np.broadcast_to(geom.platform_xyh[:, 2:3], (n, b)),
+        "track": np.broadcast_to(geom.track[:, None], (n, b)),
         "off_nadir_angle": geom.off_nadir_rad, "azimuth_angle": geom.azimuth_rad,
         "incidence_angle": np.where(hit, geom.incidence_rad, nan),
         "range_true": rng_true,
@@ -214,6 +247,7 @@ def _per_shot(geom, meas) -> dict:
         "range_error": rng_true - r_meas,
         "h_li_true": xyz[..., 2],
         "h_li": h_meas,
+        "h_li_sigma": _height_sigma_m(config, geom, meas, r_meas, det),
         "snr_db": meas["snr_db"],
         "received_power": meas["received_power"],
         "beat_frequency": meas["beat_frequency"],
@@ -237,11 +271,16 @@ def results_dataset(per_shot: dict, config, scene, mission_label: str, date_crea
                        seed=config.seed, software_version=__version__, materials=materials,
                        title=f"chirplidar survey: {Path(mission_label).stem} over {scene.name}",
                        date_created=date_created)
+    x0, x1, y0, y1 = scene.bounds_xy
     ds.attrs.update({
         "tier": sv.tier, "mission_file": str(Path(mission_label)),
         "scene_file": str(scene.path), "scene_configuration": scene.text,
         "platform": config.platform.kind, "beam_pattern": config.beams.pattern,
+        "scene_extent_wkt": box(x0, y0, x1, y1).wkt,
     })
+    polygon = survey_polygon_xy(config, scene)
+    if polygon is not None:
+        ds.attrs["survey_polygon_wkt"] = Polygon(polygon).wkt
     return ds
 
 
@@ -327,7 +366,7 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
     except ValueError as exc:
         raise ConfigError(f"{job.mission_label}: [platform]: {exc}") from None
     meas = _measure(config, scene, geom, seq, progress)
-    per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(geom, meas).items()}
+    per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(config, geom, meas).items()}
     ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created)
     # Compressed here, in the results file's HDF5 chunks: the merge copies them as they are.
     # The directory is not created here: a straggler of a run that is over cannot leave a

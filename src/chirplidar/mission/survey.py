@@ -148,14 +148,15 @@ def _path(config, scene, source: str):
     hdg = np.radians(sec.heading_deg) if sec.heading_deg is not None else None
     try:
         if pf.kind == "uav":
+            legs = None   # waypoints: every leg is a track of its own
             if sec.survey_polygon_m is not None:
-                xy = lawnmower(_xy(sec.survey_polygon_m, sec.coordinates, scene),
-                               sec.line_spacing_m, hdg)
+                xy, legs = lawnmower(_xy(sec.survey_polygon_m, sec.coordinates, scene),
+                                     sec.line_spacing_m, hdg)
             else:
                 xy = _xy(sec.waypoints_m, sec.coordinates, scene)
             w = np.column_stack([xy, np.full(len(xy), sec.altitude_m)])
             ground = scene.ground_height_m if sec.altitude_mode == "above_ground" else None
-            return UavPath(w, sec.speed_mps, sec.altitude_mode, ground)
+            return UavPath(w, sec.speed_mps, sec.altitude_mode, ground, segment_tracks=legs)
         if sec.survey_polygon_m is not None:
             lines = lawnmower_lines(_xy(sec.survey_polygon_m, sec.coordinates, scene),
                                     sec.line_spacing_m, hdg)
@@ -168,6 +169,24 @@ def _path(config, scene, source: str):
         return AircraftLines(lines, sec.altitude_m, sec.speed_mps, sec.turn_radius_m)
     except ValueError as exc:
         raise ConfigError(f"{source}: {key}: {exc}") from None
+
+
+def survey_polygon_xy(config, scene) -> np.ndarray | None:
+    """(k, 2) projected x, y [m] of the mission's survey polygon (UAV or aircraft
+    ``survey_polygon_m``), or None when the path is given by waypoints or an orbit."""
+    pf = config.platform
+    sec = pf.uav if pf.kind == "uav" else pf.aircraft if pf.kind == "aircraft" else None
+    if sec is None or sec.survey_polygon_m is None:
+        return None
+    return _xy(sec.survey_polygon_m, sec.coordinates, scene)
+
+
+def track_index(path, t_s) -> np.ndarray:
+    """(n,) track of each shot time: the survey line of a UAV or aircraft (-1 in turns and
+    transits; a waypoint path's legs are numbered), 0 for a satellite pass."""
+    if hasattr(path, "track_index"):
+        return np.asarray(path.track_index(t_s), dtype=np.int64)
+    return np.zeros(np.shape(t_s), dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -220,6 +239,7 @@ class ChunkGeometry:
     """Per shot (n) and beam (b) and, for footprints, sub-ray (k). Misses: inf ranges, code -1."""
 
     t_s: np.ndarray              # (n,)
+    track: np.ndarray            # (n,) survey line or pass (:func:`track_index`)
     platform_xyh: np.ndarray     # (n, 3) scene x, y [m] and ellipsoidal height [m]
     off_nadir_rad: np.ndarray    # (n, b)
     azimuth_rad: np.ndarray      # (n, b) clockwise from true north
@@ -302,7 +322,7 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
         sub_r = rays.range_offset_m[..., None] + t_sub * rays.metres_per_unit[..., None]
     sub_r = np.where(np.isfinite(t_sub), sub_r, np.inf)
     return ChunkGeometry(
-        t_s=t_s, platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
+        t_s=t_s, track=track_index(plan.path, t_s), platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
         closing_speed_mps=closing, rays=rays, range_true_m=rng_true,
         hit_xyz_m=np.where(hit[..., None], centre.points_m.reshape(n, b, 3), np.nan),
         incidence_rad=inc, material=mat, beam_radius_m=w, sub_range_m=sub_r,
