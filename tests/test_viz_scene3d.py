@@ -205,3 +205,128 @@ def test_import_does_not_import_pyvista():
             "bad = [m for m in ('pyvista', 'vtk', 'vtkmodules') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ------------------------------------------------------------------------------ framing (bounds)
+BOX = (X0 - 500.0, Y0 - 400.0, X0 + 500.0, Y0 + 400.0)
+
+
+def _inside(x, y, box):
+    return (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+
+
+def test_bounds_crop_the_scene_and_frame_the_camera():
+    ds = _dataset()
+    scene = scene3d._Scene(ds, _terrain(), "range_error", None, None, bounds=BOX)
+    x0, y0, _ = scene.origin
+    assert (x0, y0) == (X0, Y0)                                   # centre of the box
+    assert scene.extent == 1000.0
+    assert scene.fit_xy == ((-500.0, 500.0), (-400.0, 400.0))
+    fx, fy = scene.fp_xyz[:, 0] + x0, scene.fp_xyz[:, 1] + y0
+    assert np.all(_inside(fx, fy, BOX))
+    n_in = int(np.count_nonzero(_inside(ds.x.values, ds.y.values, BOX)))
+    assert 0 < n_in < ds.x.size and len(fx) == n_in
+    assert scene.n_outside == ds.x.size - n_in
+    # terrain: the 250 m cells that overlap the box, no more
+    tx, ty = scene.terrain["points"][:, 0] + x0, scene.terrain["points"][:, 1] + y0
+    assert tx.min() <= BOX[0] and tx.max() >= BOX[2] and ty.min() <= BOX[1] and ty.max() >= BOX[3]
+    assert tx.min() > BOX[0] - 250.0 - 1e-6 and tx.max() < BOX[2] + 250.0 + 1e-6
+    assert len(scene.terrain["codes"]) == len(scene.terrain["faces"])
+    assert scene.ve == auto_vertical_exaggeration(float(np.ptp(scene.terrain["z"])), 1000.0)
+    assert len(scene.track_runs) == 1                             # one pass through the box
+    assert "shots outside not drawn" in scene.legend_text
+
+
+def test_track_breaks_where_it_leaves_the_box():
+    # a lawnmower: east along y0 - 100 m, a turn outside the box, west along y0 + 100 m
+    n = 100
+    leg = np.linspace(-1500.0, 1500.0, n)
+    px = X0 + np.concatenate([leg, leg[::-1]])[None, :]
+    py = Y0 + np.concatenate([np.full(n, -100.0), np.full(n, 100.0)])[None, :]
+    shape = px.shape
+    ds = build_dataset({"delta_time": np.arange(2 * n)[None, :] * 0.1, "x": px, "y": py,
+                        "platform_x": px, "platform_y": py,
+                        "platform_altitude": np.full(shape, H0 + 500.0),
+                        "h_li_true": H0 + 0.02 * (px - X0), "range_error": np.zeros(shape)},
+                       epsg=3413, epoch_iso="2026-01-01T00:00:00Z", config_toml="a = 1",
+                       seed=1, software_version="test", date_created="2026-01-01T00:00:00Z")
+    scene = scene3d._Scene(ds, None, "range_error", None, None, bounds=BOX)
+    assert len(scene.track_runs) == 2
+    for a, b in scene.track_runs:                                 # each run: one straight leg
+        assert np.ptp(scene.track[a:b, 1]) == 0.0
+    whole = scene3d._Scene(ds, None, "range_error", None, None)
+    assert whole.track_runs == [(0, 2 * n)]
+
+
+def test_bounds_without_footprints_and_bad_camera_are_refused(tmp_path):
+    ds = _dataset()
+    far = (X0 + 10_000.0, Y0, X0 + 11_000.0, Y0 + 1000.0)
+    with pytest.raises(ValueError, match=r"^bounds: no footprint lies inside"):
+        render_track(ds, _terrain(), bounds=far, png=tmp_path / "x.png", show=False)
+    with pytest.raises(ValueError, match=r"^bounds: need XMIN < XMAX"):
+        render_track(ds, None, bounds=(1.0, 0.0, 0.0, 1.0), png=tmp_path / "x.png", show=False)
+    with pytest.raises(ValueError, match=r"^camera_elevation_deg \(--camera-elevation\)"):
+        render_track(ds, None, camera_elevation_deg=95.0, png=tmp_path / "x.png", show=False)
+    with pytest.raises(ValueError, match=r"^camera_azimuth_deg \(--camera-azimuth\)"):
+        render_track(ds, None, camera_azimuth_deg=float("nan"), png=tmp_path / "x.png",
+                     show=False)
+    with pytest.raises(ValueError, match=r"^zoom \(--zoom\) must be > 0"):
+        render_track(ds, None, zoom=0.0, png=tmp_path / "x.png", show=False)
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize(("azimuth", "elevation"), [(None, None), (200.0, 60.0), (180.0, 90.0)])
+def test_camera_is_fitted_to_the_box(azimuth, elevation):
+    # the box's ground corners (with the heights drawn in it) project inside the window and
+    # span most of it in one direction: fitted to the box, not to the whole scene
+    import pyvista as pv
+
+    scene = scene3d._Scene(_dataset(), _terrain(), "range_error", None, None, bounds=BOX)
+    camera = scene3d._check_camera(azimuth, elevation, None)
+    pl = pv.Plotter(off_screen=True, window_size=SIZE)
+    try:
+        scene3d._populate(pv, pl, scene, SIZE, camera)
+        corners = np.array(np.meshgrid(*scene.fit_box, indexing="ij")).reshape(3, -1).T
+        ren = pl.renderer
+        display = []
+        for c in corners:
+            ren.SetWorldPoint(*c, 1.0)
+            ren.WorldToDisplay()
+            display.append(ren.GetDisplayPoint()[:2])
+        display = np.array(display)
+    finally:
+        pl.close()
+    w, h = SIZE
+    assert np.all((display >= -1.0) & (display <= np.array([w, h]) + 1.0))
+    span = np.ptp(display, axis=0) / np.array([w, h])
+    assert span.max() > 0.85
+
+
+def test_bounds_and_camera_render_the_box(tmp_path):
+    size = (800, 600)      # footprints a few pixels wide: both colour-map ends countable
+    out = render_track(_dataset(), _terrain(), png=tmp_path / "box.png", show=False,
+                       window_size=size, bounds=BOX, camera_azimuth_deg=150.0,
+                       camera_elevation_deg=40.0, zoom=1.1)
+    rgb = mpimg.imread(str(out))[..., :3].astype(float)
+    assert rgb.shape[:2] == (size[1], size[0])
+    scene = _scene_region(rgb)
+    assert _non_background_fraction(scene) > 0.6                 # the cropped terrain fills it
+    # the colour range is that of the footprints in the box (min-max below 100 shots): both
+    # ends drawn (the blue end is a single footprint of the 50 with a value)
+    assert np.count_nonzero(_red(scene)) > 5 and np.count_nonzero(_blue(scene)) > 5
+
+
+def test_cli_view_with_bounds_and_camera(tmp_path, capsys):
+    from chirplidar.cli import main
+    from chirplidar.mission.results import write_netcdf
+
+    nc = write_netcdf(_dataset(), tmp_path / "r.nc")          # no scene file: track only
+    png = tmp_path / "v.png"
+    bounds = ",".join(f"{v:.0f}" for v in BOX)                 # starts with "-200500"
+    assert main(["view", str(nc), "--png", str(png), "--bounds", bounds,
+                 "--camera-azimuth", "200", "--camera-elevation", "60", "--zoom", "1.5"]) == 0
+    assert png.is_file()
+    assert main(["view", str(nc), "--png", str(png), "--zoom", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("chirplidar view: error: zoom (--zoom) must be > 0 (2: twice as "
+                       "close), got -1")

@@ -13,8 +13,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import warnings
+from pathlib import Path
 from typing import Any, Sequence
 
 TIERS = ("rf", "link")
@@ -83,9 +85,18 @@ def _sweep_flags(ds, n_x: int) -> list[list[str]] | None:
 
 
 def _load(args) -> Any:
+    """The mission's configuration with ``--set``; ``--at-s`` and ``--beam`` (which pick a shot
+    of a survey) are refused on a mission without a ``[survey]`` section."""
     from .config import load_mission
 
-    return load_mission(args.mission, args.set or [])
+    cfg = load_mission(args.mission, args.set or [])
+    given = [o for o, v in (("--at-s", getattr(args, "at_s", None)),
+                            ("--beam", getattr(args, "beam", None))) if v is not None]
+    if given and cfg.survey is None:
+        raise UsageError(f"{' and '.join(given)} pick a shot of a survey mission (a file with "
+                         f"[scene], [platform], [attitude], [beams] and [survey]); "
+                         f"{args.mission} has no [survey] section")
+    return cfg
 
 
 def _fix_mission_after_set(parser: argparse.ArgumentParser, args) -> None:
@@ -100,15 +111,34 @@ def _fix_mission_after_set(parser: argparse.ArgumentParser, args) -> None:
 # ---------------------------------------------------------------------------------------- commands
 
 def cmd_shot(args) -> int:
-    from .api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_shot
+    from .api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_mission_shot, simulate_shot
+    from .mission.shot import GEOMETRY_KEYS, is_survey
 
     cfg = _load(args)
-    result = simulate_shot(cfg, seed=args.seed, tier=args.tier, return_spectrum=bool(args.plot))
+    if is_survey(cfg):
+        # A survey mission: one shot of the survey at its own geometry, never the bench channel.
+        result = simulate_mission_shot(args.mission, overrides=args.set or [], seed=args.seed,
+                                       tier=args.tier, at_s=args.at_s,
+                                       beam=0 if args.beam is None else args.beam,
+                                       return_spectrum=bool(args.plot))
+    else:
+        result = simulate_shot(cfg, seed=args.seed, tier=args.tier,
+                               return_spectrum=bool(args.plot))
+    mission_geometry = bool(result.get("mission_geometry"))
     if args.json:
-        print(_dump_json(_shot_record(result, OUTPUT_NAMES)))
+        rec = _shot_record(result, OUTPUT_NAMES)
+        if mission_geometry:
+            rec.update({k: _json_number(result[k]) for k in GEOMETRY_KEYS})
+            rec["mission_geometry"] = True
+        print(_dump_json(rec))
     else:
         print(f"{args.mission}  tier {result.get('tier', args.tier)}"
               + (f"  seed {args.seed}" if args.seed is not None else ""))
+        if mission_geometry:
+            r = result
+            print(f"  survey shot t = {r['t_s']:.6g} s (shot {r['shot_index']}), beam {r['beam']}: "
+                  f"range {r['range_m']:.2f} m to {r['surface']} at x {r['x_m']:.1f} m, "
+                  f"y {r['y_m']:.1f} m, incidence {r['incidence_deg']:.1f} deg")
         for name in OUTPUT_NAMES:
             print(f"  {name:<9} {_fmt_value(result[name]):>14}  {OUTPUT_UNITS.get(name, '')}")
         f_beat = result.get("f_beat_hz", math.nan)
@@ -124,27 +154,35 @@ def cmd_shot(args) -> int:
             return 1
         from .viz.spectrum import plot_beat_spectrum
 
+        where = (f", t = {result['t_s']:.6g} s, beam {result['beam']}, "
+                 f"{result['range_m']:.1f} m" if mission_geometry else "")
         path = plot_beat_spectrum(spectrum, args.plot, outputs=result, unit=args.plot_unit,
-                                  title=f"Dechirped beat spectrum ({args.mission}, "
+                                  title=f"Dechirped beat spectrum ({args.mission}{where}, "
                                         f"{result.get('tier', args.tier)} tier)")
         print(f"wrote {path}", file=sys.stderr)
     return 0
 
 
 def cmd_sweep(args) -> int:
-    from .api import OUTPUT_NAMES, OUTPUT_UNITS, sweep
+    from .api import OUTPUT_NAMES, OUTPUT_UNITS, sweep, sweep_mission
+    from .mission.shot import GEOMETRY_KEYS, GEOMETRY_UNITS, is_survey
 
     if args.n < 1:
         raise UsageError(f"--n must be >= 1, got {args.n}")
     if args.repeat < 1:
         raise UsageError(f"--repeat must be >= 1, got {args.repeat}")
-    plottable = (*OUTPUT_NAMES, "f_beat_hz")
-    x_name = _resolve_output_name(args.x, plottable, allow_x=args.vary)
-    y_name = _resolve_output_name(args.y, plottable, allow_x=args.vary)
     if args.scale == "log" and (args.start <= 0 or args.stop <= 0):
         raise UsageError(f"--scale log needs positive --start and --stop (got {args.start:g}, "
                          f"{args.stop:g})")
+    import numpy as np
+
     cfg = _load(args)
+    survey = is_survey(cfg)
+    # A survey sweep can also plot the evaluated shot's geometry (range_m, incidence_deg, ...).
+    geometry_names = [k for k in GEOMETRY_KEYS if k in GEOMETRY_UNITS] if survey else []
+    plottable = (*OUTPUT_NAMES, "f_beat_hz", *geometry_names)
+    x_name = _resolve_output_name(args.x, plottable, allow_x=args.vary)
+    y_name = _resolve_output_name(args.y, plottable, allow_x=args.vary)
     # Check the varied key and both end values before any shot runs (no progress bar for a typo).
     from .config import ConfigError, config_with
 
@@ -154,12 +192,25 @@ def cmd_sweep(args) -> int:
         except ConfigError as exc:
             msg = str(exc).removeprefix("--set: ").removeprefix("override: ")
             raise ConfigError(f"--vary {args.vary} at {value:g}: {msg}") from None
-    ds = sweep(cfg, args.vary, args.start, args.stop, args.n, repeat=args.repeat,
-               scale=args.scale, seed=args.seed, tier=args.tier, progress=not args.no_progress)
+    if survey:
+        # Each point re-plans the mission with the varied key: the shot at that point's geometry.
+        ds = sweep_mission(args.mission, args.vary, args.start, args.stop, args.n,
+                           overrides=args.set or [], repeat=args.repeat, scale=args.scale,
+                           seed=args.seed, tier=args.tier, at_s=args.at_s,
+                           beam=0 if args.beam is None else args.beam,
+                           progress=not args.no_progress)
+    else:
+        ds = sweep(cfg, args.vary, args.start, args.stop, args.n, repeat=args.repeat,
+                   scale=args.scale, seed=args.seed, tier=args.tier,
+                   progress=not args.no_progress)
     xs = [float(v) for v in ds["x"].values]
     n_rep = int(ds.sizes.get("repeat", 1))
     names = list(OUTPUT_NAMES) + (["f_beat_hz"] if "f_beat_hz" in ds.data_vars else [])
     table = {n: ds[n].transpose("x", ...).values.reshape(len(xs), n_rep) for n in names}
+    # Per point, as Python numbers (ints stay JSON integers: beam, shot_index) and strings.
+    geometry = {k: ds[k].values.tolist() for k in GEOMETRY_KEYS if survey and k in ds.data_vars}
+    for k in geometry_names:  # per point: the same value for every repeat
+        table[k] = np.repeat(np.asarray(geometry[k], float)[:, None], n_rep, axis=1)
     flags = _sweep_flags(ds, len(xs))
     if args.json:
         records = []
@@ -169,13 +220,25 @@ def cmd_sweep(args) -> int:
                 rec.update({n: _json_number(table[n][i, r]) for n in names})
                 if flags is not None:
                     rec["flags"] = flags[i]
+                if survey:
+                    rec.update({k: _json_number(v[i]) for k, v in geometry.items()})
+                    rec["mission_geometry"] = True
                 records.append(rec)
         print(_dump_json(records))
     else:
-        cols = [c for c in dict.fromkeys([x_name, y_name, "Psig", "SNR", "d_rx", "d_error"])
+        cols = [c for c in dict.fromkeys([x_name, y_name, "Psig", "SNR", "d_rx", "d_error",
+                                          *(["range_m"] if survey else [])])
                 if c != "x"]
         print(f"sweep of {args.vary} ({args.scale}, {args.n} x {n_rep}), tier {args.tier}")
-        units = dict(OUTPUT_UNITS, f_beat_hz="Hz")
+        if survey:
+            surfaces = sorted({str(v) for v in geometry["surface"]})
+            beam = int(geometry["beam"][0])
+            when = (f"nearest to t = {args.at_s:g} s" if args.at_s is not None
+                    else "first shot whose beam hits the terrain")
+            print(f"  at the mission's geometry: beam {beam}, {when} (t = "
+                  + ", ".join(f"{t:.6g}" for t in sorted(set(geometry['t_s'])))
+                  + f" s), surface {', '.join(surfaces)}")
+        units = dict(OUTPUT_UNITS, f_beat_hz="Hz", **GEOMETRY_UNITS)
         print(f"  {args.vary:>14} {'repeat':>6} "
               + " ".join(f"{c + ' (' + units.get(c, '') + ')':>15}" for c in cols)
               + ("  flags" if flags is not None else ""))
@@ -187,7 +250,10 @@ def cmd_sweep(args) -> int:
     if args.plot:
         from .viz.sensitivity import plot_sweep
 
-        path = plot_sweep(ds, args.plot, x=x_name, y=y_name, x_scale=args.scale)
+        plot_ds = ds
+        for k in {x_name, y_name} & set(geometry_names):  # dims (x,) -> (x, repeat) to plot
+            plot_ds = plot_ds.assign({k: (("x", "repeat"), table[k], dict(ds[k].attrs))})
+        path = plot_sweep(plot_ds, args.plot, x=x_name, y=y_name, x_scale=args.scale)
         print(f"wrote {path}", file=sys.stderr)
     return 0
 
@@ -216,16 +282,164 @@ def cmd_run(args) -> int:
     return 0
 
 
-def cmd_view(args) -> int:
-    from .mission.view import view_result
+#: Summary figures shown on the coverage map.
+_MAP_SUMMARY = ("fraction_covered", "cells_covered", "cells_in_region", "largest_gap_m",
+                "median_height_precision_m", "along_track_spacing_m", "across_track_spacing_m",
+                "crossovers", "crossover_rms_m")
 
+
+def cmd_coverage(args) -> int:
+    from .analysis.coverage import (GRID_VARIABLES, compute_coverage, summary_json,
+                                    write_coverage)
+
+    if args.out is not None:
+        out = Path(args.out)
+        if out.suffix != ".nc":
+            raise UsageError(f"--out {out}: the grid file must end in .nc")
+        if out.exists() and not args.overwrite:
+            raise UsageError(f"--out {out} exists: pass --overwrite to replace it "
+                             "(nothing was computed)")
+        if not out.parent.is_dir():
+            raise UsageError(f"--out {out}: directory {out.parent} does not exist")
+    if args.var not in GRID_VARIABLES:
+        raise UsageError(f"--var {args.var}: not a coverage grid variable; choose one of "
+                         f"{', '.join(GRID_VARIABLES)}")
+    bounds = None
+    if args.bounds is not None:
+        from .mission.view import parse_bounds
+
+        try:
+            bounds = parse_bounds(args.bounds)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
     try:
-        path = view_result(args.result, var=args.var, png=args.png)
+        cov = compute_coverage(args.results, cell_m=args.cell_m, region=args.region,
+                               bounds=bounds, min_detections=args.min_detections,
+                               progress=not args.no_progress)
+    except ValueError as exc:   # CoverageError: one line naming the file or option
+        raise UsageError(str(exc)) from None
+    if args.out is not None:
+        path = write_coverage(cov, args.out, overwrite=args.overwrite)
+        print(f"wrote {path}", file=sys.stderr)
+    if args.png is not None:
+        path = _coverage_map(cov, args)
+        print(f"wrote {path}", file=sys.stderr)
+    if args.json:
+        print(summary_json(cov.summary))
+    else:
+        print(format_coverage_summary(cov.summary))
+    return 0
+
+
+def _coverage_map(cov, args):
+    """The plan-view map of a coverage result (hillshade of the first file's scene)."""
+    import xarray as xr
+
+    from .mission.view import result_terrain
+    from .viz.planmap import plot_plan_map
+
+    with xr.open_dataset(args.results[0], decode_times=False) as ds:   # attributes only
+        terrain = result_terrain(ds)
+    s = cov.summary
+    names = ", ".join(Path(p).name for p in args.results)
+    title = (f"Coverage of {names}: {cov.grid[args.var].attrs['long_name']}, "
+             f"{s['cell_m']:g} m cells")
+    return plot_plan_map(args.png, terrain=terrain, tracks=list(cov.tracks), grid=cov.grid,
+                         var=args.var, region=cov.region, crossovers=cov.crossovers,
+                         summary={k: s[k] for k in _MAP_SUMMARY}, title=title, epsg=cov.epsg)
+
+
+def format_coverage_summary(s: dict) -> str:
+    def m(v):
+        return "n/a" if v is None or not math.isfinite(v) else f"{v:.3g} m"
+
+    region = s["region"]
+    where = region.get("file", region["kind"])
+    lines = [
+        f"chirplidar coverage: {len(s['files'])} file(s), {s['shots']} shots "
+        f"({s['detected_shots']} detected), cells of {s['cell_m']:g} m, region {where} "
+        f"(EPSG:{region['epsg']})",
+        f"  covered          {s['cells_covered']} of {s['cells_in_region']} cells "
+        f"({100 * s['fraction_covered']:.1f} %) with >= {s['min_detections']} detection(s)",
+        f"  largest gap      {m(s['largest_gap_m'])} (to the nearest detected footprint)",
+        f"  detections/cell  median {s['median_detections_per_cell']:g}",
+        f"  height precision median {m(s['median_height_precision_m'])} per shot measured, "
+        f"{m(s['median_height_precision_predicted_m'])} predicted",
+        f"  spacing          {m(s['along_track_spacing_m'])} along track, "
+        f"{m(s['across_track_spacing_m'])} across",
+        f"  flown            {s['track_length_m'] / 1e3:.2f} km in {s['flight_time_s']:.0f} s",
+        f"  crossovers       {s['crossovers']}"
+        + (f", RMS height residual {m(s['crossover_rms_m'])}" if s["crossovers"] else ""),
+    ]
+    return "\n".join(lines)
+
+
+def cmd_view(args) -> int:
+    from .mission.view import parse_bounds, view_plan, view_result
+
+    camera = {"--camera-azimuth": args.camera_azimuth, "--camera-elevation":
+              args.camera_elevation, "--zoom": args.zoom}
+    try:
+        bounds = parse_bounds(args.bounds) if args.bounds is not None else None
+        if args.plan:
+            if args.png is None:
+                raise UsageError("--plan writes a file: give --png OUT.png")
+            given = [name for name, value in camera.items() if value is not None]
+            if given:
+                raise UsageError(f"{', '.join(given)}: only for the 3-D view, not with --plan")
+            path = view_plan(args.result, var=args.var, png=args.png, bounds=bounds)
+        else:
+            path = view_result(args.result, var=args.var, png=args.png, bounds=bounds,
+                               camera_azimuth_deg=args.camera_azimuth,
+                               camera_elevation_deg=args.camera_elevation, zoom=args.zoom)
     except FileNotFoundError as exc:
         raise UsageError(str(exc)) from None
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if path is not None:
+        print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def cmd_study(args) -> int:
+    """``chirplidar study``: the survey mission at every point of a grid of one or two keys
+    (:mod:`chirplidar.analysis.study`); a table, JSON, a plot and/or a NetCDF study file."""
+    from .analysis.study import format_study, run_study, study_records
+
+    if args.mission is None:   # a MISSION written after --set lands in args.set
+        if args.set and "=" not in args.set[-1]:
+            args.mission = args.set.pop()
+        else:
+            raise UsageError("the following arguments are required: MISSION")
+    if not args.vary:
+        raise UsageError("--vary KEY=START:STOP:N or KEY=V1,V2,... is required")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError("--workers and --scheduler are exclusive: --workers N starts a local "
+                         "cluster, --scheduler ADDRESS uses a running one")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise UsageError("--scheduler needs an address, e.g. tcp://127.0.0.1:8786")
+    if args.plot is not None and not args.plot.lower().endswith(".png"):
+        raise UsageError(f"--plot {args.plot}: the plot file must end in .png")
+    try:
+        ds = run_study(args.mission, args.vary, overrides=args.set or [], span_s=args.span_s,
+                       cell_m=args.cell_m, tier=args.tier, seed=args.seed,
+                       workers=args.workers, scheduler=args.scheduler,
+                       progress=not args.no_progress, out=args.out, overwrite=args.overwrite)
+    except FileExistsError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(_dump_json([{k: _json_number(v) for k, v in rec.items()}
+                          for rec in study_records(ds)]))
+    else:
+        print(format_study(ds))
+    if args.out is not None:
+        print(f"wrote {args.out}", file=sys.stderr)
+    if args.plot:
+        from .viz.study import plot_study
+
+        path = plot_study(ds, args.plot)
         print(f"wrote {path}", file=sys.stderr)
     return 0
 
@@ -300,6 +514,20 @@ def cmd_bench(args) -> int:
         else:
             print(format_scale(res))
         return 0
+    if args.what == "coverage":
+        from .analysis.coverage_bench import bench_coverage, format_coverage_bench
+
+        if args.shots is not None and args.shots < 1000:
+            raise UsageError(f"--shots must be >= 1000 for --what coverage, got {args.shots}")
+        say = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+        res = bench_coverage(10_000_000 if args.shots is None else args.shots, progress=say)
+        if args.json:
+            print(_dump_json({k: (res[k] if k == "sizes" else _json_number(res[k]))
+                              for k in ("shots", "seconds", "shots_per_s", "peak_memory_mb",
+                                        "baseline_memory_mb", "sizes")}))
+        else:
+            print(format_coverage_bench(res))
+        return 0
     if args.what == "effects":
         res = bench_effects(args.mission, args.set or [], repeats=args.repeats)
         if args.json:
@@ -344,6 +572,17 @@ def _add_common(p: argparse.ArgumentParser, *, mission_positional: bool = True) 
                    help="random seed (default: the mission's seed)")
     p.add_argument("--tier", choices=TIERS, default="rf",
                    help="fidelity tier: rf = full time-domain chain, link = closed-form budget")
+    p.add_argument("--at-s", type=float, default=None, metavar="T",
+                   help="survey missions: evaluate the shot nearest to T seconds of the mission "
+                        "clock (default: the first shot whose beam hits the terrain)")
+    p.add_argument("--beam", type=int, default=None, metavar="K",
+                   help="survey missions: evaluate beam K of the shot (default 0)")
+
+
+def _negative_values(p: argparse.ArgumentParser) -> None:
+    """Let "-224000,-2504000,..." (a --bounds in Greenland, XMIN negative) be a value, not an
+    option: the matcher Python >= 3.13 uses; 3.11's accepts a lone negative number only."""
+    p._negative_number_matcher = re.compile(r"-\.?\d")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -353,18 +592,21 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=JSON_NOTE)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    p = sub.add_parser("shot", help="simulate one shot and print the Table 4.10 outputs",
+    p = sub.add_parser("shot", help="simulate one shot and print the Table 4.10 outputs (a "
+                       "survey mission: one shot of the survey at its own geometry)",
                        epilog=JSON_NOTE)
     _add_common(p)
     p.add_argument("--json", action="store_true",
-                   help="print one JSON object (Table 4.10 names, flags, tier, f_beat_hz)")
+                   help="print one JSON object (Table 4.10 names, flags, tier, f_beat_hz; on a "
+                        "survey mission also the shot's geometry: t_s, beam, range_m, x_m, y_m, "
+                        "surface, incidence_deg, ... and mission_geometry = true)")
     p.add_argument("--plot", metavar="PNG", help="draw the beat spectrum (thesis Fig. 5.2)")
     p.add_argument("--plot-unit", choices=("dBm", "dBm/Hz"), default="dBm",
                    help="spectrum y axis: dBm in one RBW (spectrum analyzer, default) or dBm/Hz")
     p.set_defaults(func=cmd_shot, subparser=p)
 
-    p = sub.add_parser("sweep", help="vary one key and tabulate or plot the outputs",
-                       epilog=JSON_NOTE)
+    p = sub.add_parser("sweep", help="vary one key and tabulate or plot the outputs (a survey "
+                       "mission: the survey shot re-planned at every value)", epilog=JSON_NOTE)
     _add_common(p)
     p.add_argument("--vary", required=True, metavar="KEY",
                    help="key to vary, e.g. atm.Pattn or channel.extra_attenuation_db")
@@ -375,11 +617,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale", choices=("lin", "log"), default="lin", help="value spacing")
     p.add_argument("--json", action="store_true",
                    help="print a JSON list, one object per value and repeat: x, repeat, the "
-                        "Table 4.10 outputs, f_beat_hz and flags")
+                        "Table 4.10 outputs, f_beat_hz and flags (survey missions: and the "
+                        "evaluated shot's geometry, as shot --json)")
     p.add_argument("--plot", metavar="PNG", help="draw --y against --x")
     p.add_argument("--x", default="Psig", metavar="NAME",
-                   help="plot x: an output name (thesis outputs.NAME ok) or 'x' for the varied "
-                        "key (default Psig)")
+                   help="plot x: an output name (thesis outputs.NAME ok), 'x' for the varied "
+                        "key, or on a survey mission a geometry name such as range_m "
+                        "(default Psig)")
     p.add_argument("--y", default="SNR", metavar="NAME",
                    help="plot y: an output name, outputs.CNR = SNR (default SNR)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
@@ -414,21 +658,108 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("view", help="3-D view of a run: terrain, track and footprints")
+    p = sub.add_parser("coverage", help="grid the footprints of results files: coverage, "
+                       "gaps, height precision, crossovers; CF grid NetCDF and a map")
+    _negative_values(p)
+    p.add_argument("results", metavar="RESULT.nc", nargs="+",
+                   help="files written by chirplidar run (one projection)")
+    p.add_argument("--cell-m", type=float, required=True, metavar="C",
+                   help="cell size in the results' projected metres")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--bounds", metavar="XMIN,YMIN,XMAX,YMAX", default=None,
+                       help="the region as a box of projected metres")
+    where.add_argument("--region", default=None, metavar="survey|scene|FILE.geojson",
+                       help="survey: the runs' survey polygon (default where there is one); "
+                            "scene: the scene's extent; or a GeoJSON polygon (WGS-84)")
+    p.add_argument("--min-detections", type=int, default=1, metavar="K",
+                   help="detected shots a cell needs to count as covered (default 1)")
+    p.add_argument("--out", metavar="GRID.nc", default=None,
+                   help="write the grid (CF-1.8, opens in QGIS and Panoply) with the "
+                        "crossovers in its group 'crossovers'")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.add_argument("--png", metavar="MAP.png", default=None,
+                   help="plan-view map: hillshade, tracks, --var, region, crossovers, summary")
+    p.add_argument("--var", default="detected_shots",
+                   help="grid variable the map colours (default detected_shots; e.g. covered, "
+                        "gap, height_precision_measured, median_snr_db)")
+    p.add_argument("--json", action="store_true",
+                   help="print the summary as one JSON object (cells_in_region, cells_covered, "
+                        "fraction_covered, largest_gap_m, ... region, files)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_coverage)
+
+    p = sub.add_parser("view", help="3-D view of a run (terrain, track and footprints), or a "
+                       "plan-view map with --plan")
+    _negative_values(p)
     p.add_argument("result", metavar="RESULT.nc", help="a file written by chirplidar run")
     p.add_argument("--var", default="range_error",
-                   help="variable that colours the footprints (default range_error)")
+                   help="per-shot variable that colours the footprints (default range_error)")
     p.add_argument("--png", metavar="OUT.png", default=None,
                    help="write a PNG off-screen instead of opening a window")
+    p.add_argument("--plan", action="store_true",
+                   help="plan-view map (hillshade, footprint tracks, footprints coloured by "
+                        "--var, survey polygon, scale bar, true-north arrow) instead of 3-D; "
+                        "needs --png")
+    p.add_argument("--bounds", metavar="XMIN,YMIN,XMAX,YMAX", default=None,
+                   help="frame the view to this box of the results' projected metres (e.g. "
+                        "--bounds -223500,-2503500,-222500,-2502800); 3-D: crops terrain and "
+                        "footprints and fits the camera to the box")
+    p.add_argument("--camera-azimuth", type=float, default=None, metavar="DEG",
+                   help="3-D: camera direction, clockwise from grid north (default 135, grid "
+                        "south-east)")
+    p.add_argument("--camera-elevation", type=float, default=None, metavar="DEG",
+                   help="3-D: camera elevation above the horizon, -90..90 (default 35)")
+    p.add_argument("--zoom", type=float, default=None, metavar="F",
+                   help="3-D: zoom factor after fitting the view (2: twice as close; default 1)")
     p.set_defaults(func=cmd_view)
 
+    p = sub.add_parser("study", help="run a survey mission over a grid of one or two keys "
+                       "(altitude, line spacing, laser power, material, ...) and tabulate "
+                       "detection, SNR, power, ranging and coverage per point",
+                       epilog=JSON_NOTE)
+    p.add_argument("mission", metavar="MISSION", nargs="?", default=None,
+                   help="survey mission, e.g. missions/greenland_uav.toml")
+    p.add_argument("--vary", metavar="KEY=SPEC", action="append", default=[],
+                   help="a key to vary (any --set key, thesis names and scene.<key> too): "
+                        "KEY=START:STOP:N (N >= 2 values, add :log for geometric spacing) or "
+                        "KEY=V1,V2,... (TOML literals, bare words as strings); at most twice")
+    p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
+                   help="override a mission key at every point; repeatable")
+    p.add_argument("--span-s", type=float, default=None, metavar="S",
+                   help="run survey.start_s .. start_s + S of each point (default: the whole "
+                        "mission)")
+    p.add_argument("--cell-m", type=float, default=None, metavar="C",
+                   help="also the covered fraction of the survey area on C-metre cells")
+    p.add_argument("--tier", choices=("link", "baseband", "rf"), default=None,
+                   help="override survey.tier (default: the mission's)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="random seed of every point (default: the mission's)")
+    p.add_argument("--json", action="store_true",
+                   help="print a JSON list, one object per point: the varied keys and the "
+                        "metrics")
+    p.add_argument("--plot", metavar="PNG", default=None,
+                   help="draw the metrics against the varied key(s)")
+    p.add_argument("--out", metavar="STUDY.nc", default=None,
+                   help="write the study (one dimension per varied key) to NetCDF")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run each point's chunks on a local Dask cluster of N workers")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run each point's chunks on a running Dask cluster (give --out on "
+                        "storage its workers see: the points' temporary files go beside it)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_study)
+
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
-    p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers"),
+    p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
+                                      "coverage"),
                    default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
                         "and off; raycast: our ray casting against raw embree; tiers: seconds per "
                         "shot of the rf, baseband and link tiers; accuracy: the accuracy-versus-"
-                        "time study; scale: the demo mission serially and on 2 Dask workers")
+                        "time study; scale: the demo mission serially and on 2 Dask workers; "
+                        "coverage: chirplidar coverage of generated 10 M and 20 M shot files "
+                        "(--shots sets the smaller)")
     p.add_argument("--triangles", type=int, default=1_000_000,
                    help="raycast: terrain triangles (default 1,000,000)")
     p.add_argument("--rays", type=int, default=200_000, help="raycast: rays per timing")
@@ -444,13 +775,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "accuracy_vs_time.{csv,md,png} (default outputs). --what tiers prints "
                         "seconds per shot of the rf, baseband and link tiers")
     p.add_argument("--shots", type=int, default=None,
-                   help="accuracy: shots per setting (default 120)")
+                   help="accuracy: shots per setting (default 120); coverage: shots of the "
+                        "smaller generated file (default 10,000,000)")
     p.add_argument("--json", action="store_true",
                    help='print {"rf_shot_s", "fft_s", "ratio"} (shot), {"none_s", "<effect>_s", '
                         '...} (effects), {"project_rays_per_s", "embree_rays_per_s", "ratio"} '
                         '(raycast), {"rf_shot_s", "baseband_shot_s", "link_shot_s", '
                         '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
-                        '"workers_2_s", "speedup"} (scale) or the study rows (accuracy)')
+                        '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
+                        '"peak_memory_mb", ...} (coverage) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")

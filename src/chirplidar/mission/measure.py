@@ -545,22 +545,71 @@ def _footprint_returns(config, scene, geom, seq):
     return psig, r_mean, frac, fields, np.isfinite(r_mean) & (psig > 0)
 
 
+def shot_base_config(config, scene):
+    """The instrument a survey's per-shot tier calls start from: :func:`_node_config` (the ideal
+    reference target; the shot's own losses go into ``channel.extra_attenuation_db``) with laser
+    phase noise when the laser has a linewidth and Doppler when the scene enables it."""
+    lw = config.laser.linewidth_hz > 0
+    enabled = (["phase_noise"] if lw else []) + (["doppler"] if "doppler" in scene.effects else [])
+    return _node_config(config, enabled)
+
+
+def rf_shot_stream(seq, flat: int) -> np.random.Generator:
+    """The rf tier's random stream of shot-beam ``flat`` (= shot index x beams + beam) of the
+    chunk whose SeedSequence is ``seq``."""
+    return stream(seq, STREAM_RF + int(flat))
+
+
+def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int):
+    """The rf tier's input for shot ``i``, beam ``j`` of a chunk: (configuration, footprint
+    :class:`~chirplidar.tiers.echoes.Echoes`).
+
+    ``base``: :func:`shot_base_config`; ``ptx_w``: the transmitted power of ``config``'s budget;
+    ``returns``: :func:`_footprint_returns` of the chunk (P_sig, mean range, sub-ray power shares,
+    speckle fields or None, ...). The configuration aims the instrument at the footprint's
+    power-weighted mean range R0 (``channel.distance_m``), with the shot's closing speed as the
+    Doppler radial velocity when Doppler is on, and the attenuation that turns the reference
+    target's power into the shot's: extra_attenuation_db = 10 log10(f_ref(R0) P_tx / (P_sig g)),
+    f_ref = :func:`reference_power_fraction`, g the echoes' gain (:func:`footprint_echoes`: the
+    tier scales the received power by it). The echoes are the footprint's sub-rays at their delay
+    offsets 2 n (R_k - R0) / c (n: ``channel.group_index``).
+    """
+    from ..tiers.echoes import Echoes
+
+    psig, r_mean, frac, fields = returns[:4]
+    n_grp = config.channel.group_index
+    r0 = float(r_mean[i, j])
+    over = {"channel.distance_m": r0}
+    if "doppler" in base.effects.enabled:
+        over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
+    cfg0 = config_with(base, over)
+    w = frac[i, j]
+    keep = w > 0
+    dtau = 2.0 * n_grp * (geom.sub_range_m[i, j][keep] - r0) / SPEED_OF_LIGHT_M_S
+    offs, pw, phase, gain = footprint_echoes(
+        cfg0, make_budget(cfg0), w[keep][None], dtau[None],
+        None if fields is None else fields[i, j][keep][None], sign=1.0)
+    att = float(10 * np.log10(reference_power_fraction(config, r0) * ptx_w
+                              / (psig[i, j] * gain[0])))
+    cfg = config_with(cfg0, {"channel.extra_attenuation_db": att})
+    return cfg, Echoes(offs[0], pw[0], phase[0])
+
+
 def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     """rf-tier measurements: each shot-beam is simulated at full rate, its footprint's sub-rays
     summed as delayed echoes (``tiers.rf`` ``echoes``, see :func:`footprint_echoes`): a sloped or
     rough footprint broadens the beat peak. With ``speckle`` enabled each sub-ray carries its own
     speckle field (:func:`subray_speckle_fields`: their sum is the footprint's speckle, so the
     speckle effect's per-shot draw is not applied); otherwise the footprint returns its mean power
-    with one common carrier phase (no interference between the sub-ray samples)."""
-    from ..tiers.echoes import Echoes
+    with one common carrier phase (no interference between the sub-ray samples). Each shot's
+    input is :func:`rf_shot_setup`'s (also used by ``chirplidar shot`` on a survey mission)."""
     from ..tiers.rf import simulate_rf
 
     bud = make_budget(config)
-    psig, r_mean, frac, fields, ok = _footprint_returns(config, scene, geom, seq)
+    returns = _footprint_returns(config, scene, geom, seq)
+    psig, ok = returns[0], returns[4]
     n, b = psig.shape
-    lw = config.laser.linewidth_hz > 0
-    enabled = (["phase_noise"] if lw else []) + (["doppler"] if "doppler" in scene.effects else [])
-    base = _node_config(config, enabled)
+    base = shot_base_config(config, scene)
     snr = np.zeros((n, b))
     f_meas = np.full((n, b), np.nan)
     range_meas = np.full((n, b), np.nan)
@@ -570,22 +619,8 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     n_grp = config.channel.group_index
     for flat in np.flatnonzero(ok.ravel()):  # the rf tier is the reference: one shot at a time
         i, j = divmod(int(flat), b)
-        r0 = float(r_mean[i, j])
-        over = {"channel.distance_m": r0}
-        if "doppler" in enabled:
-            over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
-        cfg0 = config_with(base, over)
-        w = frac[i, j]
-        keep = w > 0
-        dtau = 2.0 * n_grp * (geom.sub_range_m[i, j][keep] - r0) / SPEED_OF_LIGHT_M_S
-        offs, pw, phase, gain = footprint_echoes(
-            cfg0, make_budget(cfg0), w[keep][None], dtau[None],
-            None if fields is None else fields[i, j][keep][None], sign=1.0)
-        att = float(10 * np.log10(reference_power_fraction(config, r0) * bud.ptx_w
-                                  / (psig[i, j] * gain[0])))
-        cfg = config_with(cfg0, {"channel.extra_attenuation_db": att})
-        rng = stream(seq, STREAM_RF + int(flat))
-        out = simulate_rf(cfg, rng, batch=1, echoes=Echoes(offs[0], pw[0], phase[0]))
+        cfg, echoes = rf_shot_setup(config, base, bud.ptx_w, geom, returns, i, j)
+        out = simulate_rf(cfg, rf_shot_stream(seq, flat), batch=1, echoes=echoes)
         snr[i, j] = float(db_to_ratio(out["SNR"][0]))
         f_meas[i, j] = out["f_beat_hz"][0]
         range_meas[i, j] = out["d_rx"][0]

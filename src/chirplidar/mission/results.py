@@ -172,7 +172,9 @@ def _check_epoch(epoch_iso: str) -> str:
     return epoch_iso
 
 
-def _crs_attrs(epsg) -> dict:
+def crs_attributes(epsg) -> dict:
+    """CF grid-mapping attributes of a projected EPSG code (pyproj's ``to_cf`` plus GDAL's
+    ``spatial_ref``); ValueError for an unknown or unprojected code."""
     if isinstance(epsg, (bool, np.bool_)) or not isinstance(epsg, (int, np.integer)):
         raise ValueError(f"epsg must be an integer EPSG code, got {epsg!r}")
     from pyproj import CRS
@@ -314,7 +316,7 @@ def build_dataset(per_shot: dict, *, epsg: int, epoch_iso: str, config_toml: str
     reproducible output.
     """
     epoch_iso = _check_epoch(epoch_iso)
-    crs_attrs = _crs_attrs(epsg)
+    crs_attrs = crs_attributes(epsg)
     if not isinstance(config_toml, str):
         raise ValueError(f"config_toml must be a string, got {type(config_toml).__name__}")
     try:
@@ -582,6 +584,13 @@ def _atomic_commit(tmp: Path, path: Path, *, overwrite: bool) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_atomic(path, write, *, overwrite: bool = False) -> Path:
+    """Create ``path`` atomically: ``write(tmp)`` fills a temp file beside it, which is then
+    renamed onto ``path`` (see :func:`write_netcdf`); FileExistsError for an existing ``path``
+    unless ``overwrite``."""
+    return _atomic_write(path, write, overwrite=overwrite)
 
 
 def write_bytes_atomic(path, data: bytes, *, overwrite: bool = True) -> Path:

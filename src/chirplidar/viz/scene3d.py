@@ -13,11 +13,15 @@ Scene conventions
 * Heights are scaled by the vertical exaggeration about the origin height (the terrain's mean
   vertex height, else the footprints' median height).
 * The camera looks from grid south-east (+x, -y of the projection, not true south-east) at 35 deg
-  elevation and is fitted to the scene.
+  elevation and is fitted to the scene (``camera_azimuth_deg``, ``camera_elevation_deg`` and
+  ``zoom`` of :func:`render_track` change that). ``bounds`` crops the terrain and footprints to a
+  box of projected metres and fits the camera to the box, so a short stretch of track fills the
+  view.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import warnings
@@ -25,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["auto_vertical_exaggeration", "render_track", "showable_variables"]
+__all__ = ["auto_vertical_exaggeration", "check_bounds_m", "render_track",
+           "showable_variables"]
 
 TRAJECTORY_DIM = "trajectory"
 OBS_DIM = "obs"
@@ -147,20 +152,25 @@ def _check_window_size(window_size) -> tuple[int, int]:
     return int(w), int(h)
 
 
-def _percentile_clim(values: np.ndarray) -> tuple[float, float]:
+def _percentile_clim(values: np.ndarray, symmetric: bool = True) -> tuple[float, float]:
     """Colour range: 1st-99th percentile for >= 100 values (outliers saturate), else min-max;
-    symmetric about 0 when the values take both signs (errors)."""
+    symmetric about 0 when the values take both signs (errors) unless ``symmetric`` is False
+    (decibels: 0 dB is no special value)."""
     if values.size >= 100:
         lo, hi = (float(v) for v in np.percentile(values, [1.0, 99.0]))
     else:
         lo, hi = float(values.min()), float(values.max())
-    if lo < 0 < hi:
+    if symmetric and lo < 0 < hi:
         m = max(-lo, hi)
         lo, hi = -m, m
     if hi <= lo:  # one value: open a range around it so the colormap is defined
         pad = 0.5 * abs(lo) if lo != 0 else 1.0
         lo, hi = lo - pad, hi + pad
     return lo, hi
+
+
+def _is_decibel(var) -> bool:
+    return str(var.attrs.get("units", "")).strip().lower() == "db"
 
 
 def _label(var) -> str:
@@ -186,11 +196,106 @@ def _every_kth(n: int, n_max: int) -> np.ndarray:
     return np.arange(0, n, max(1, math.ceil(n / n_max)))
 
 
+def check_bounds_m(bounds, name: str = "bounds") -> tuple[float, float, float, float]:
+    """``(xmin, ymin, xmax, ymax)`` as floats (projected metres): four finite numbers with
+    xmin < xmax and ymin < ymax, else ValueError naming ``name``."""
+    try:
+        if isinstance(bounds, (str, bytes)):
+            raise TypeError
+        values = tuple(float(v) for v in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected four numbers XMIN, YMIN, XMAX, YMAX (projected "
+                         f"metres), got {bounds!r}") from None
+    if len(values) != 4:
+        raise ValueError(f"{name}: expected four numbers XMIN, YMIN, XMAX, YMAX (projected "
+                         f"metres), got {len(values)}")
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}: XMIN, YMIN, XMAX, YMAX must be finite, got "
+                         f"{', '.join(f'{v:g}' for v in values)}")
+    xmin, ymin, xmax, ymax = values
+    if xmin >= xmax or ymin >= ymax:
+        raise ValueError(f"{name}: need XMIN < XMAX and YMIN < YMAX, got x {xmin:g} .. {xmax:g},"
+                         f" y {ymin:g} .. {ymax:g}")
+    return values
+
+
+def _check_camera(azimuth_deg, elevation_deg, zoom) -> tuple[float, float, float]:
+    """(azimuth, elevation, zoom) with the module defaults for None, validated."""
+    out = []
+    for name, option, value, default in (
+            ("camera_azimuth_deg", "--camera-azimuth", azimuth_deg, CAMERA_AZIMUTH_DEG),
+            ("camera_elevation_deg", "--camera-elevation", elevation_deg, CAMERA_ELEVATION_DEG),
+            ("zoom", "--zoom", zoom, 1.0)):
+        if value is None:
+            out.append(float(default))
+            continue
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            v = math.nan
+        if isinstance(value, (bool, np.bool_)) or not math.isfinite(v):
+            raise ValueError(f"{name} ({option}) must be a finite number, got {value!r}")
+        out.append(v)
+    if not -90.0 <= out[1] <= 90.0:
+        raise ValueError(f"camera_elevation_deg (--camera-elevation) must lie in [-90, 90] "
+                         f"degrees above the horizon, got {out[1]:g}")
+    if out[2] <= 0:
+        raise ValueError(f"zoom (--zoom) must be > 0 (2: twice as close), got {out[2]:g}")
+    return out[0], out[1], out[2]
+
+
+def _crop_terrain(terrain, bounds):
+    """(vertices (n, 3) float64, faces (m, 3) int64, material codes (m,)) of the terrain's faces
+    that overlap ``bounds`` (whole faces: the box is covered to its edges), or None if none does.
+    Heightfields are cropped on their grid without building the whole mesh."""
+    xmin, ymin, xmax, ymax = bounds
+    g = getattr(terrain, "grid", None)
+    fm = np.asarray(terrain.face_materials)
+    if g is not None:
+        gx, gy = g.x_m, g.y_m
+        # cell i spans gx[i]..gx[i+1]: it overlaps when gx[i] <= xmax and gx[i+1] >= xmin
+        i0 = max(int(np.searchsorted(gx, xmin, side="right")) - 1, 0)
+        i1 = min(int(np.searchsorted(gx, xmax, side="right")), gx.size - 1)
+        j0 = max(int(np.searchsorted(gy, ymin, side="right")) - 1, 0)
+        j1 = min(int(np.searchsorted(gy, ymax, side="right")), gy.size - 1)
+        if i1 <= i0 or j1 <= j0:
+            return None
+        cf = g.cell_face[j0:j1, i0:i1]
+        ok = (cf >= 0).ravel()
+        if not ok.any():
+            return None
+        ny, nx = j1 - j0 + 1, i1 - i0 + 1
+        idx = np.arange(ny * nx).reshape(ny, nx)
+        v00, v10 = idx[:-1, :-1].ravel()[ok], idx[:-1, 1:].ravel()[ok]
+        v01, v11 = idx[1:, :-1].ravel()[ok], idx[1:, 1:].ravel()[ok]
+        faces = np.empty((2 * v00.size, 3), dtype=np.int64)   # as HeightGrid.build_mesh
+        faces[0::2] = np.column_stack([v00, v10, v11])
+        faces[1::2] = np.column_stack([v00, v11, v01])
+        first = cf.ravel()[ok]
+        codes = np.empty(2 * first.size, dtype=fm.dtype)
+        codes[0::2], codes[1::2] = fm[first], fm[first + 1]
+        xx, yy = np.meshgrid(gx[i0:i1 + 1], gy[j0:j1 + 1])
+        verts = np.column_stack([xx.ravel(), yy.ravel(), g.z_m[j0:j1 + 1, i0:i1 + 1].ravel()])
+    else:
+        verts = np.asarray(terrain.mesh.vertices, dtype=np.float64)
+        faces = np.asarray(terrain.mesh.faces, dtype=np.int64)
+        fx, fy = verts[faces, 0], verts[faces, 1]
+        keep = ((fx.min(axis=1) <= xmax) & (fx.max(axis=1) >= xmin)
+                & (fy.min(axis=1) <= ymax) & (fy.max(axis=1) >= ymin))
+        if not keep.any():
+            return None
+        faces, codes = faces[keep], fm[keep]
+    used = np.zeros(len(verts), dtype=bool)
+    used[faces.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return verts[used], remap[faces], codes
+
+
 # ------------------------------------------------------------------------------------ scene
 class _Scene:
     """Everything to draw, in local display coordinates (float64, origin removed, z scaled)."""
 
-    def __init__(self, ds, terrain, var: str, vertical_exaggeration, title):
+    def __init__(self, ds, terrain, var: str, vertical_exaggeration, title, bounds=None):
         for name in ("x", "y"):
             if name not in ds.variables:
                 raise ValueError(f"ds lacks the footprint coordinate {name!r} (projected metres)")
@@ -217,24 +322,46 @@ class _Scene:
             h = np.where(np.isfinite(h), h, _shot_array(ds, "h_li"))
         values = _shot_array(ds, var)
 
-        # terrain in float64 projected metres
+        self.bounds = None if bounds is None else check_bounds_m(bounds, "bounds")
+        # terrain in float64 projected metres (cropped to the bounds: None if none is inside)
+        tv = tf = codes = None
         if terrain is not None:
             mesh = getattr(terrain, "mesh", None)
             if mesh is None or not hasattr(terrain, "face_materials"):
                 raise ValueError("terrain must be a chirplidar.geometry.terrain.Terrain, got "
                                  f"{type(terrain).__name__}")
-            tv = np.asarray(mesh.vertices, dtype=np.float64)
-            tf = np.asarray(mesh.faces, dtype=np.int64)
-        placed = np.isfinite(x) & np.isfinite(y)
-        self.n_unplaced = int(np.count_nonzero(~placed))
+            if self.bounds is not None:
+                cropped = _crop_terrain(terrain, self.bounds)
+                if cropped is not None:
+                    tv, tf, codes = cropped
+            else:
+                tv = np.asarray(mesh.vertices, dtype=np.float64)
+                tf = np.asarray(mesh.faces, dtype=np.int64)
+                codes = np.asarray(terrain.face_materials)
+        have_terrain = tv is not None
+        finite_xy = np.isfinite(x) & np.isfinite(y)
+        self.n_unplaced = int(np.count_nonzero(~finite_xy))
+        placed = finite_xy
+        self.n_outside = 0
+        if self.bounds is not None:
+            xmin, ymin, xmax, ymax = self.bounds
+            with np.errstate(invalid="ignore"):
+                placed = finite_xy & (x >= xmin) & (x <= xmax) & (y >= ymin) & (y <= ymax)
+            self.n_outside = int(np.count_nonzero(finite_xy & ~placed))
+            if not placed.any():
+                span = (f"footprints span x {x[finite_xy].min():.0f} .. {x[finite_xy].max():.0f}"
+                        f", y {y[finite_xy].min():.0f} .. {y[finite_xy].max():.0f} m"
+                        if finite_xy.any() else "no footprint has finite x and y")
+                raise ValueError(f"bounds: no footprint lies inside x {xmin:.0f} .. {xmax:.0f}, "
+                                 f"y {ymin:.0f} .. {ymax:.0f} m ({span})")
 
-        if terrain is None and not placed.any():
+        if not have_terrain and not placed.any():
             raise ValueError("ds has no footprint with finite x and y and no terrain was given: "
                              "nothing to draw")
         # Heights missing for a placed footprint (e.g. no surface in the beam): draw at the
         # median surface height so the shot is still visible; counted in the legend.
         finite_h = h[placed & np.isfinite(h)]
-        if terrain is not None:
+        if have_terrain:
             z_ref = float(tv[:, 2].mean())
         elif finite_h.size:
             z_ref = float(np.median(finite_h))
@@ -245,8 +372,11 @@ class _Scene:
         self.n_height_filled = int(np.count_nonzero(placed & ~np.isfinite(h)))
         h = np.where(np.isfinite(h), h, fill_h)
 
-        # local origin and horizontal extent
-        if terrain is not None:
+        # local origin and horizontal extent (the bounds, when given)
+        if self.bounds is not None:
+            x_lo, y_lo, x_hi, y_hi = self.bounds
+            relief = float(np.ptp(tv[:, 2])) if have_terrain else float(np.ptp(h[placed]))
+        elif have_terrain:
             x_lo, y_lo = tv[:, 0].min(), tv[:, 1].min()
             x_hi, y_hi = tv[:, 0].max(), tv[:, 1].max()
             if placed.any():
@@ -258,6 +388,12 @@ class _Scene:
                 y[placed].max()
             relief = float(np.ptp(h[placed]))
         self.origin = (0.5 * (x_lo + x_hi), 0.5 * (y_lo + y_hi), z_ref)
+        # camera box (local x, y): the bounds when given (heights: set below), else everything
+        # drawn
+        self.fit_xy = None if self.bounds is None else (
+            (x_lo - self.origin[0], x_hi - self.origin[0]),
+            (y_lo - self.origin[1], y_hi - self.origin[1]))
+        self.fit_box = None
         # Display scale only: a single footprint without terrain still needs a size.
         self.extent = float(max(x_hi - x_lo, y_hi - y_lo)) or 100.0
 
@@ -281,8 +417,7 @@ class _Scene:
 
         # terrain
         self.terrain = None
-        if terrain is not None:
-            codes = np.asarray(terrain.face_materials)
+        if have_terrain:
             names = tuple(terrain.material_names)
             used = np.unique(codes)
             self.terrain = {"points": local(tv[:, 0], tv[:, 1], tv[:, 2]), "faces": tf,
@@ -291,6 +426,14 @@ class _Scene:
         # footprints, split into shots with and without a value of `var`
         xyz = local(x, y, h).reshape(self.n_beams, self.n_obs, 3)
         self.fp_xyz = xyz[placed]
+        if self.fit_xy is not None:
+            # the ground in the box: heights of the cropped terrain and of the footprints (the
+            # platform track may leave the frame: the box is what was asked for)
+            zs = self.fp_xyz[:, 2]
+            if self.terrain is not None:
+                zs = np.concatenate([zs, self.terrain["points"][:, 2]])
+            self.fit_box = np.array([self.fit_xy[0], self.fit_xy[1],
+                                     (float(zs.min()), float(zs.max()))])
         self.fp_values = values[placed]
 
         # colouring of `var`
@@ -314,15 +457,17 @@ class _Scene:
         else:
             self.fp_scalars = self.fp_values
             finite = self.fp_values[np.isfinite(self.fp_values)]
-            self.clim = _percentile_clim(finite) if finite.size else None
+            symmetric = not _is_decibel(dvar)
+            self.clim = _percentile_clim(finite, symmetric) if finite.size else None
             # Diverging map with a pale-yellow centre: stays distinct from the ice-blue terrain
             # and the grey of no-value shots (coolwarm's grey centre does not).
-            self.cmap = "RdYlBu_r" if self.clim is not None and self.clim[0] < 0 < self.clim[1] \
-                else "viridis"
+            self.cmap = "RdYlBu_r" if symmetric and self.clim is not None \
+                and self.clim[0] < 0 < self.clim[1] else "viridis"
         self.n_nan = int(np.count_nonzero(~np.isfinite(self.fp_scalars)))
 
         # platform
         self.track = None
+        self.track_runs = []        # (start, stop) rows of self.track drawn as one line each
         self.rays = None
         self.satellite_km = None
         have_platform = all(n in ds.variables
@@ -331,7 +476,15 @@ class _Scene:
             px, py, pz = (_shot_array(ds, n) for n in
                           ("platform_x", "platform_y", "platform_altitude"))
             track = _first_finite_per_obs(px, py, pz)
-            track = track[np.all(np.isfinite(track), axis=1)]
+            # With bounds: the shots with a footprint inside. The line breaks where the crop
+            # removed shots (a lawnmower leaving and re-entering the box), not at NaN fixes.
+            shown = placed.any(axis=0) if self.bounds is not None else np.ones(self.n_obs, bool)
+            rows = np.flatnonzero(np.all(np.isfinite(track), axis=1) & shown)
+            track = track[rows]
+            cropped_before = np.cumsum(~shown)[rows]
+            breaks = np.flatnonzero(np.diff(cropped_before) != 0) + 1
+            edges = [0, *breaks.tolist(), rows.size]
+            self.track_runs = [(a, b) for a, b in itertools.pairwise(edges) if b > a]
             if track.shape[0]:
                 height_above = float(np.median(track[:, 2])) - float(np.median(h[placed])) \
                     if placed.any() else float(np.median(track[:, 2])) - z0
@@ -360,16 +513,26 @@ class _Scene:
                     self.rays = (starts, ends)
 
         # texts
+        n_shown = int(np.count_nonzero(placed))
         if self.n_beams * self.n_obs == 0:
             self.detected_text = "detected: n/a (no shots)"
         elif "detected" in ds.variables:
-            det = np.asarray(ds["detected"].values)
-            self.detected_text = f"detected: {100.0 * np.mean(det == 1):.1f} % of shots"
+            det = _shot_array(ds, "detected")
+            if self.bounds is not None:
+                self.detected_text = (f"detected: {100.0 * np.mean(det[placed] == 1):.1f} % of "
+                                      f"the {n_shown} shots shown")
+            else:
+                self.detected_text = f"detected: {100.0 * np.mean(det == 1):.1f} % of shots"
         else:
             self.detected_text = "detected: n/a (no detected flag)"
         epsg = ds.attrs.get("epsg_code", "projected CRS")
         beams = f"{self.n_beams} beam{'s' if self.n_beams != 1 else ''}"
         lines = [f"{beams}, {self.n_beams * self.n_obs} shots", self.detected_text]
+        if self.bounds is not None:
+            bx0, by0, bx1, by1 = self.bounds
+            lines.append(f"bounds x {bx0:.0f} .. {bx1:.0f} m, y {by0:.0f} .. {by1:.0f} m: "
+                         f"{self.n_outside} shots outside not drawn"
+                         + ("" if have_terrain or terrain is None else "; no terrain inside"))
         if self.n_nan:
             lines.append(f"grey: no {var} value ({self.n_nan} shots)")
         if self.n_unplaced:
@@ -401,7 +564,9 @@ def _material_color(name: str, i: int) -> str:
     return MATERIAL_COLORS.get(name, _OTHER_MATERIAL_COLORS[i % len(_OTHER_MATERIAL_COLORS)])
 
 
-def _populate(pv, pl, s: _Scene, window_size) -> None:
+def _populate(pv, pl, s: _Scene, window_size, camera=None) -> None:
+    """Add the scene's actors to plotter ``pl`` and place the camera: ``camera`` =
+    (azimuth_deg, elevation_deg, zoom), default the module's CAMERA_* constants and zoom 1."""
     from matplotlib.colors import LinearSegmentedColormap, ListedColormap, to_rgb
 
     pl.set_background(BACKGROUND)
@@ -479,8 +644,10 @@ def _populate(pv, pl, s: _Scene, window_size) -> None:
                     line_width=1.0)
         legend_entries.append(["beam to platform" if s.satellite_km is None
                                else "beam (toward platform)", RAY_COLOR])
-    if s.track is not None and s.track.shape[0] >= 2:
-        pl.add_mesh(pv.lines_from_points(s.track), color=TRACK_COLOR, line_width=3.0)
+    runs = [(a, b) for a, b in s.track_runs if b - a >= 2] if s.track is not None else []
+    if runs:
+        lines = np.concatenate([np.concatenate([[b - a], np.arange(a, b)]) for a, b in runs])
+        pl.add_mesh(pv.PolyData(s.track, lines=lines), color=TRACK_COLOR, line_width=3.0)
         legend_entries.append(["platform track", TRACK_COLOR])
     elif s.track is not None:
         pl.add_mesh(pv.PolyData(s.track), color=TRACK_COLOR, point_size=8.0,
@@ -499,16 +666,48 @@ def _populate(pv, pl, s: _Scene, window_size) -> None:
     if legend_entries:
         pl.add_actor(_legend_box(legend_entries, window_size, info_font_size))
 
-    # Camera from grid south-east at 35 deg elevation, fitted to the scene.
-    az, el = math.radians(CAMERA_AZIMUTH_DEG), math.radians(CAMERA_ELEVATION_DEG)
+    # Camera from grid south-east at 35 deg elevation (or as asked), fitted to the scene, or to
+    # the bounds' box (with the height range of what is drawn) when they are given.
+    az_deg, el_deg, zoom = camera if camera is not None else (
+        CAMERA_AZIMUTH_DEG, CAMERA_ELEVATION_DEG, 1.0)
+    az, el = math.radians(az_deg), math.radians(el_deg)
     direction = np.array([math.cos(el) * math.sin(az), math.cos(el) * math.cos(az),
                           math.sin(el)])
-    b = np.array(pl.bounds, dtype=float).reshape(3, 2)
-    focal = b.mean(axis=1)
-    pl.camera_position = [tuple(focal + direction * max(s.extent, 1.0)), tuple(focal),
-                          (0.0, 0.0, 1.0)]
-    pl.reset_camera()
-    pl.camera.zoom(1.05)
+    # Looking straight down (or up) the vertical is no "up": the far side of the azimuth is.
+    view_up = (0.0, 0.0, 1.0) if abs(el_deg) < 89.5 else (-math.sin(az), -math.cos(az), 0.0)
+    if s.fit_box is None:
+        b = np.array(pl.bounds, dtype=float).reshape(3, 2)
+        focal = b.mean(axis=1)
+        pl.camera_position = [tuple(focal + direction * max(s.extent, 1.0)), tuple(focal),
+                              view_up]
+        pl.reset_camera()
+        pl.camera.zoom(1.05 * zoom)   # 5 % margin around the fitted scene
+    else:
+        _fit_box(pl, s.fit_box, direction, view_up, width_px / height_px)
+        pl.camera.zoom(zoom)
+
+
+def _fit_box(pl, box: np.ndarray, direction: np.ndarray, view_up, aspect: float,
+             margin: float = 1.05) -> None:
+    """Place the perspective camera looking along -direction at the centre of ``box`` (3, 2)
+    (local coordinates), just far enough for its 8 corners to fit the view (VTK's reset_camera
+    fits the bounding sphere instead, which leaves a flat box small from above). aspect: window
+    width / height; margin: 5 % of room around the box."""
+    focal = box.mean(axis=1)
+    d = direction / np.linalg.norm(direction)
+    up = np.asarray(view_up, dtype=float)
+    right = np.cross(d, up)          # screen axes of a camera looking along -d
+    right /= np.linalg.norm(right)
+    up = np.cross(right, d)
+    tan_v = math.tan(math.radians(pl.camera.view_angle) / 2.0) / margin
+    tan_h = tan_v * aspect
+    corners = np.array(np.meshgrid(*box, indexing="ij")).reshape(3, -1).T - focal
+    toward = corners @ d             # corner's distance from the focal plane towards the camera
+    distance = float(np.max(toward + np.maximum(np.abs(corners @ right) / tan_h,
+                                                np.abs(corners @ up) / tan_v)))
+    distance = max(distance, 1e-3 * float(np.ptp(box[:2], axis=1).max()), 1.0)
+    pl.camera_position = [tuple(focal + d * distance), tuple(focal), tuple(up)]
+    pl.reset_camera_clipping_range()
 
 
 def _text_actor(text: str, position, font_size: int, halign: str, valign: str):
@@ -586,7 +785,8 @@ class _QuietVtk:
 
 # ------------------------------------------------------------------------------------ public
 def render_track(ds, terrain=None, *, var: str = "range_error", png=None, show=None,
-                 window_size=(1600, 1000), vertical_exaggeration=None, title=None):
+                 window_size=(1600, 1000), vertical_exaggeration=None, title=None, bounds=None,
+                 camera_azimuth_deg=None, camera_elevation_deg=None, zoom=None):
     """Terrain, platform track and footprints coloured by `var`, with pyvista. Returns the PNG path (or None when only shown).
 
     Parameters
@@ -609,8 +809,9 @@ def render_track(ds, terrain=None, *, var: str = "range_error", png=None, show=N
         ``range_error`` (m), ``snr_db`` (dB), ``h_li`` (m), ``detected`` / ``surface_type`` (flags:
         categorical colours annotated with ``flag_meanings``). The scalar bar is titled
         ``long_name (units)``. Continuous values use the 1st-99th percentile range (min-max below
-        100 shots), a diverging colormap symmetric about 0 when values take both signs. Shots
-        with NaN are drawn grey. Unknown names: ValueError listing the showable variables.
+        100 shots), a diverging colormap symmetric about 0 when values take both signs (not
+        for dB, whose 0 is no special value). Shots with NaN are drawn grey. Unknown names:
+        ValueError listing the showable variables.
     png : str or os.PathLike or None
         Output ``.png`` path; its directory must exist. Given, the scene is rendered off-screen
         and written there.
@@ -628,6 +829,20 @@ def render_track(ds, terrain=None, *, var: str = "range_error", png=None, show=N
         1/2/5 x 10^k, clipped to [1, 100]; 1 for flat-ish scenes.
     title : str or None
         Heading; None gives ``"chirplidar: <long_name (units)>"``.
+    bounds : (xmin, ymin, xmax, ymax) or None
+        Box in projected metres (the frame of ``ds.x``/``ds.y``): only the terrain faces that
+        overlap it, the footprints inside it (and their platform track, broken where it leaves
+        the box, and beam lines) are drawn, and the camera is fitted to the box (its x-y extent
+        with the height range of what is drawn); the vertical exaggeration and the local origin
+        follow the box. ValueError when no footprint lies inside. None: the whole scene.
+    camera_azimuth_deg : float or None
+        Direction the camera looks from, clockwise from grid north (+y); None:
+        ``CAMERA_AZIMUTH_DEG`` (135, grid south-east).
+    camera_elevation_deg : float or None
+        Camera elevation above the horizon in [-90, 90] degrees (90: straight down, map-like,
+        the azimuth's far side up); None: ``CAMERA_ELEVATION_DEG`` (35).
+    zoom : float or None
+        Factor > 0 applied after fitting (2: twice as close); None: 1.
 
     Satellites: when the platform's median height above the footprints, times the vertical
     exaggeration, exceeds 3x the horizontal extent of the scene, the track is not drawn (the
@@ -666,7 +881,8 @@ def render_track(ds, terrain=None, *, var: str = "range_error", png=None, show=N
         raise ValueError("png: no output path given and no interactive window to open "
                          "(no display, or show=False); pass png=...")
 
-    scene = _Scene(ds, terrain, var, vertical_exaggeration, title)
+    camera = _check_camera(camera_azimuth_deg, camera_elevation_deg, zoom)
+    scene = _Scene(ds, terrain, var, vertical_exaggeration, title, bounds=bounds)
 
     import pyvista as pv  # lazy: only the 3-D view needs VTK
 
@@ -674,12 +890,12 @@ def render_track(ds, terrain=None, *, var: str = "range_error", png=None, show=N
         if png_path is not None:
             pl = pv.Plotter(off_screen=True, window_size=size)
             try:
-                _populate(pv, pl, scene, size)
+                _populate(pv, pl, scene, size, camera)
                 pl.screenshot(str(png_path))
             finally:
                 pl.close()
         if interactive:
             pl = pv.Plotter(window_size=size)
-            _populate(pv, pl, scene, size)
+            _populate(pv, pl, scene, size, camera)
             pl.show()
     return png_path

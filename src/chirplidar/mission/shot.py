@@ -1,0 +1,261 @@
+"""One shot of a survey mission at the mission's own geometry (``chirplidar shot`` and ``sweep``
+on a mission with ``[scene]``, ``[platform]``, ``[attitude]``, ``[beams]`` and ``[survey]``).
+
+A survey mission's instrument file describes the lab bench (``channel.distance_m`` is a fiber
+spool); evaluating that configuration as it stands would report the bench, not the flight. Here
+the shot is taken from the survey itself, exactly as ``chirplidar run`` computes it:
+
+1. the mission is prepared as a run prepares it (:func:`runner.prepare`: configuration with the
+   scene's effects, scene, plan);
+2. the shot: by default the first shot time of the span (``plan.t_s``) whose beam ``beam`` hits
+   the terrain, searched chunk by chunk; ``at_s`` picks the shot nearest to that time instead
+   (an error if its beam has no surface). The geometry is that of the run's chunk holding the
+   shot (:func:`survey.chunk_geometry` over the whole chunk, with the chunk's own SeedSequence:
+   the same pointing jitter and the same footprint cone, whose size follows the chunk's median
+   range, and ``survey.subrays_per_beam`` footprint sub-rays);
+3. the received power as the run computes it for the tier: :func:`measure.received_power` (link)
+   or :func:`measure._footprint_returns` (rf: without the speckle effect's power draw, which the
+   sub-rays' own speckle fields replace), with the chunk's effect streams;
+4. the tier's input configuration, as the run builds it for that shot: the instrument aimed at
+   the ideal reference target (:func:`measure.shot_base_config`) at the footprint's power-weighted
+   mean range R0 (``channel.distance_m``), the shot's closing speed as the Doppler velocity when
+   the scene enables Doppler, and ``channel.extra_attenuation_db`` = 10 log10(f_ref(R0) P_tx /
+   P_sig) (f_ref: :func:`measure.reference_power_fraction`, the reference target's received over
+   transmitted power) that turns the reference power into the shot's own. The rf tier takes the
+   footprint's echoes and the echoes' gain in that attenuation (:func:`measure.rf_shot_setup`,
+   the function ``measure_rf`` calls for every shot), and the shot's own rf stream; the link tier
+   uses the same configuration without echoes (``measure_link`` reads the same closed form from
+   its (range, attenuation) node table).
+
+What the link tier returns is its closed form for that configuration: with ``channel.carrier_phase
+= "random"`` the mean over a uniform carrier phase (the run multiplies each shot's SNR by its own
+fading draw, ``tiers.link.carrier_fading_factor``), and the line of the footprint's mean range
+(the run divides by the footprint-spread factor g, ``measure`` module docstring; g - 1 < 1e-3
+for the shipped missions). Its P_sig is the run's ``received_power`` (with the speckle effect's
+power draw when the scene enables speckle). The rf tier's P_sig is the record's own: the
+footprint's power times the echoes' gain, i.e. with the sub-rays' speckle (the rf run's
+``received_power`` column holds the speckle-free mean power; equal without speckle).
+
+Seeds: chunk ``c`` draws from child ``c`` of the root SeedSequence ``SeedSequence(seed)``, as
+``chirplidar run`` does (pointing jitter, the effects' draws such as speckle), and the tier from
+the shot's own stream (the run's rf stream of that shot) unless a generator is given
+(``api.sweep_mission`` gives each point its own, as ``api.sweep`` does).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config.loader import ConfigError, config_with
+from . import measure
+from .survey import chunk_geometry
+
+TIERS = ("rf", "link")
+
+#: Geometry keys added to a mission shot's outputs (``t_s`` [s] of the mission clock, ``beam``,
+#: ``shot_index`` in the plan, ``range_m`` true range of the beam axis to the surface,
+#: ``footprint_range_m`` power-weighted mean range of the footprint (``channel.distance_m`` of the
+#: shot's configuration; ``d_error`` is relative to it), ``x_m``/``y_m``/``surface_height_m`` the
+#: beam axis's hit in the scene frame, ``surface`` its material, ``incidence_deg`` and
+#: ``off_nadir_deg``, ``platform_height_m`` ellipsoidal height of the platform).
+GEOMETRY_KEYS = ("t_s", "beam", "shot_index", "range_m", "footprint_range_m", "x_m", "y_m",
+                 "surface_height_m", "surface", "incidence_deg", "off_nadir_deg",
+                 "platform_height_m")
+GEOMETRY_UNITS = {"t_s": "s", "range_m": "m", "footprint_range_m": "m", "x_m": "m", "y_m": "m",
+                  "surface_height_m": "m", "incidence_deg": "degree", "off_nadir_deg": "degree",
+                  "platform_height_m": "m"}
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A prepared survey mission (:func:`runner.prepare`) and the name used in messages."""
+
+    config: object
+    scene: object
+    plan: object
+    source: str
+
+
+@dataclass(frozen=True)
+class MissionShot:
+    """One survey shot as the run evaluates it: the tier's input and the shot's geometry.
+
+    ``config``: the instrument aimed at the shot (the tier's input configuration); ``echoes``: the
+    footprint's :class:`~chirplidar.tiers.echoes.Echoes` (rf tier) or None (link tier);
+    ``seq``/``flat``: the chunk's SeedSequence and the shot-beam's flat index in the chunk (shot
+    x beams + beam), which name its random stream (:meth:`rng`); ``geometry``: the
+    :data:`GEOMETRY_KEYS`.
+    """
+
+    config: object
+    echoes: object
+    tier: str
+    seq: np.random.SeedSequence
+    flat: int
+    geometry: dict
+
+    def rng(self) -> np.random.Generator:
+        """The shot's own stream: the one the run's rf tier draws this shot from."""
+        return measure.rf_shot_stream(self.seq, self.flat)
+
+
+def is_survey(config) -> bool:
+    """True for a survey mission (it has a ``[survey]`` section)."""
+    return getattr(config, "survey", None) is not None
+
+
+def prepare_mission(mission, *, overrides=(), seed=None, cache_dir=None) -> Prepared:
+    """:func:`runner.prepare` of the mission file ``mission`` (with ``--set`` style
+    ``overrides`` and an optional ``seed``), or ``mission`` itself when it is already a
+    :class:`Prepared`."""
+    if isinstance(mission, Prepared):
+        return mission
+    from .runner import prepare
+
+    config, scene, plan = prepare(mission, overrides=overrides, seed=seed, cache_dir=cache_dir)
+    return Prepared(config, scene, plan, str(mission))
+
+
+def _chunk_seq(root: np.random.SeedSequence, index: int) -> np.random.SeedSequence:
+    """Child ``index`` of ``root``: for ``root = SeedSequence(seed)`` the run's chunk seed
+    (``survey.chunk_seeds(seed, n)[index]``), whatever the number of chunks."""
+    return np.random.SeedSequence(entropy=root.entropy,
+                                  spawn_key=tuple(root.spawn_key) + (int(index),))
+
+
+def _geometry(prep: Prepared, root, index: int):
+    config, scene, plan = prep.config, prep.scene, prep.plan
+    seq = _chunk_seq(root, index)
+    try:
+        geom = chunk_geometry(plan, scene, config, plan.chunk_times(index), seq,
+                              config.survey.subrays_per_beam)
+    except ValueError as exc:
+        raise ConfigError(f"{prep.source}: [platform]: {exc}") from None
+    return geom, seq
+
+
+def locate_shot(prep: Prepared, *, at_s=None, beam: int = 0, root=None):
+    """(chunk geometry, chunk SeedSequence, shot index in the chunk, shot index in the plan) of
+    the evaluated shot: the shot nearest to ``at_s`` [s], or the first of the span whose beam
+    ``beam`` hits the terrain. ConfigError (one line) for a beam index out of range, a time
+    outside the span, or a beam with no surface."""
+    plan, src = prep.plan, prep.source
+    n_beams = plan.beams.n_beams
+    if isinstance(beam, bool) or not isinstance(beam, (int, np.integer)) \
+            or not 0 <= int(beam) < n_beams:
+        raise ConfigError(f"{src}: --beam {beam}: the mission has {n_beams} beam(s) "
+                          f"(beams.pattern = '{prep.config.beams.pattern}'): use 0..{n_beams - 1}")
+    beam = int(beam)
+    root = np.random.SeedSequence(prep.config.seed) if root is None else root
+    t = plan.t_s
+    if t.size == 0:
+        raise ConfigError(f"{src}: the survey span has no shots (survey.start_s .. stop_s at "
+                          f"survey.prf_hz)")
+    if at_s is not None:
+        at_s = float(at_s)
+        half = 0.5 / prep.config.survey.prf_hz
+        if not (math.isfinite(at_s) and t[0] - half <= at_s <= t[-1] + half):
+            raise ConfigError(f"{src}: --at-s {at_s:g}: outside the survey span "
+                              f"{t[0]:g} .. {t[-1]:g} s (survey.start_s .. stop_s)")
+        k = int(np.argmin(np.abs(t - at_s)))
+        c, i = divmod(k, plan.chunk_shots)
+        geom, seq = _geometry(prep, root, c)
+        if not np.isfinite(geom.range_true_m[i, beam]):
+            x, y, h = geom.platform_xyh[i]
+            raise ConfigError(f"{src}: --at-s {at_s:g}: beam {beam} of the shot at t = "
+                              f"{t[k]:g} s has no surface under it (platform at x {x:.0f} m, "
+                              f"y {y:.0f} m, height {h:.0f} m; the beam misses the scene)")
+        return geom, seq, i, k
+    # The run's chunks in turn: each one's geometry is exactly the run's (jitter, footprint cone).
+    for c in range(plan.n_chunks):
+        geom, seq = _geometry(prep, root, c)
+        hits = np.flatnonzero(np.isfinite(geom.range_true_m[:, beam]))
+        if hits.size:
+            i = int(hits[0])
+            return geom, seq, i, c * plan.chunk_shots + i
+    raise ConfigError(f"{src}: beam {beam} hits the terrain at no shot of the survey span "
+                      f"{t[0]:g} .. {t[-1]:g} s")
+
+
+def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, overrides=(),
+                        seed=None, root=None) -> MissionShot:
+    """The tier input of one survey shot, as ``chirplidar run`` builds it (module docstring).
+
+    ``mission``: a mission file (prepared with ``overrides`` and ``seed``) or a
+    :class:`Prepared`; ``tier``: "rf" or "link"; ``at_s``: mission-clock time [s] (default: the
+    first shot whose beam hits the terrain); ``beam``: beam index; ``root``: the SeedSequence
+    whose child c seeds chunk c (default ``SeedSequence(config.seed)``, as the run).
+    """
+    if tier not in TIERS:
+        raise ConfigError(f"--tier {tier}: a survey shot runs the tiers {', '.join(TIERS)}")
+    prep = prepare_mission(mission, overrides=overrides, seed=seed)
+    config, scene = prep.config, prep.scene
+    if config.system.modulation != "fm_chirp":
+        raise ConfigError(f"{prep.source}: survey shots model FM chirps "
+                          "(system.modulation = 'fm_chirp')")
+    geom, seq, i, k = locate_shot(prep, at_s=at_s, beam=beam, root=root)
+    j = int(beam)
+    from ..tiers.budget import make_budget
+
+    ptx_w = make_budget(config).ptx_w
+    base = measure.shot_base_config(config, scene)
+    if tier == "rf":
+        returns = measure._footprint_returns(config, scene, geom, seq)
+        psig, r_mean = returns[0], returns[1]
+    else:
+        psig, r_mean = measure.received_power(config, scene, geom, seq)[:2]
+    if not (np.isfinite(r_mean[i, j]) and psig[i, j] > 0):
+        raise ConfigError(f"{prep.source}: beam {j} of the shot at t = {geom.t_s[i]:g} s "
+                          "receives no power from its footprint")
+    if tier == "rf":
+        cfg, echoes = measure.rf_shot_setup(config, base, ptx_w, geom, returns, i, j)
+    else:
+        # As measure_link: the attenuation that turns the reference target's power into the
+        # shot's, 10 log10(f_ref(R0) / (P_sig / P_tx)).
+        r0 = float(r_mean[i, j])
+        att = float(10.0 * np.log10(measure.reference_power_fraction(config, r0)
+                                    / (psig[i, j] / ptx_w)))
+        over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
+        if "doppler" in base.effects.enabled:
+            over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
+        cfg, echoes = config_with(base, over), None
+    code = int(geom.material[i, j])
+    xyz = geom.hit_xyz_m[i, j]
+    geometry = {
+        "t_s": float(geom.t_s[i]), "beam": j, "shot_index": int(k),
+        "range_m": float(geom.range_true_m[i, j]), "footprint_range_m": float(r_mean[i, j]),
+        "x_m": float(xyz[0]), "y_m": float(xyz[1]), "surface_height_m": float(xyz[2]),
+        "surface": str(scene.terrain.material_names[code]),
+        "incidence_deg": float(np.degrees(geom.incidence_rad[i, j])),
+        "off_nadir_deg": float(np.degrees(geom.off_nadir_rad[i, j])),
+        "platform_height_m": float(geom.platform_xyh[i, 2]),
+    }
+    return MissionShot(config=cfg, echoes=echoes, tier=tier, seq=seq,
+                       flat=i * geom.range_true_m.shape[1] + j, geometry=geometry)
+
+
+def simulate_mission_shot(mission, *, tier: str = "rf", at_s=None, beam: int = 0, overrides=(),
+                          seed=None, root=None, rng=None, batch: int = 1,
+                          keep_spectrum: bool = False) -> dict:
+    """Run one survey shot through ``tier`` (see :func:`mission_shot_config` for the arguments).
+
+    Returns the tier's raw outputs (arrays over ``batch`` records of the same footprint, Table
+    4.10 names, ``flags``, ``tier``, ``f_beat_hz``, ``spectrum`` when asked) plus ``geometry``
+    (:data:`GEOMETRY_KEYS`) and ``mission_geometry = True``. The tier draws from ``rng`` when
+    given, else from the shot's own stream (:meth:`MissionShot.rng`): with ``batch = 1`` the rf
+    tier's result is then the run's for that shot (same configuration, echoes and stream).
+    """
+    from ..tiers import TIERS as TIER_FUNCS
+
+    shot = mission_shot_config(mission, tier=tier, at_s=at_s, beam=beam, overrides=overrides,
+                               seed=seed, root=root)
+    kwargs = {"echoes": shot.echoes} if shot.echoes is not None else {}
+    raw = TIER_FUNCS[tier](shot.config, shot.rng() if rng is None else rng, batch=int(batch),
+                           keep_spectrum=keep_spectrum, **kwargs)
+    raw = dict(raw)
+    raw["geometry"] = shot.geometry
+    raw["mission_geometry"] = True
+    return raw
