@@ -14,10 +14,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-# The main job: a UAV survey over a generated Greenland outlet glacier, then its 3-D view.
+# The main job: a UAV survey over a generated Greenland outlet glacier, its 3-D view, and its
+# coverage (a CF grid of 50 m cells and its map).
 demo: install
 	$(BIN)/chirplidar run missions/greenland_uav.toml --out outputs/greenland_uav.nc --overwrite
 	$(BIN)/chirplidar view outputs/greenland_uav.nc --png outputs/greenland_uav.png
+	$(BIN)/chirplidar coverage outputs/greenland_uav.nc --cell-m 50 --overwrite \
+	    --out outputs/greenland_uav_coverage.nc --png outputs/greenland_uav_coverage.png
 
 # Thesis Fig. 5.7 (sensitivity of the three receivers) into outputs/fig5_7_sensitivity.{png,csv}.
 thesis-demo: install
@@ -36,6 +39,7 @@ bench: install
 	$(BIN)/chirplidar bench --what tiers
 	$(BIN)/chirplidar bench --what scale --repeats 21
 	$(BIN)/chirplidar bench --what accuracy --out outputs
+	$(BIN)/chirplidar bench --what coverage
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info

@@ -162,6 +162,25 @@ def test_two_tracks_cross_once(tmp_path):
     assert cov.summary["crossover_rms_m"] == pytest.approx(0.05)
 
 
+def test_repeated_line_is_no_crossover_but_a_shallow_crossing_is(tmp_path):
+    # the same line flown twice (50 mm apart: pointing noise) runs together, it does not cross;
+    # a line at 10 degrees to it crosses it once, at (0, 0)
+    a = _line(0.0, -500, 0, 500, 0, 10.0, 10.0, 100.0, 0)
+    b = _line(200.0, 500, 0.05, -500, 0.05, 10.0, 10.0, 100.0, 1)
+    c = _line(400.0, -500 * math.cos(math.radians(10)), -500 * math.sin(math.radians(10)),
+              500 * math.cos(math.radians(10)), 500 * math.sin(math.radians(10)), 10.0, 10.0,
+              100.0, 2)
+    path = _write(tmp_path / "repeat.nc", _cat(a, b))
+    cov = compute_coverage([path], cell_m=50.0, bounds=(X0 - 500, Y0 - 500, X0 + 500, Y0 + 500))
+    assert cov.summary["crossovers"] == 0
+    path = _write(tmp_path / "shallow.nc", _cat(a, c))
+    xo = compute_coverage([path], cell_m=50.0,
+                          bounds=(X0 - 500, Y0 - 500, X0 + 500, Y0 + 500)).crossovers
+    assert xo.sizes["crossover"] == 1
+    assert float(xo.x[0]) == pytest.approx(X0, abs=1.0 / math.sin(math.radians(10)))
+    assert float(xo.y[0]) == pytest.approx(Y0, abs=1.0)
+
+
 def test_crossing_between_files_counts_their_epochs(tmp_path):
     # the same two tracks in two files whose epochs are a day apart
     a = _line(0.0, -500, 0, 500, 0, 10.0, 10.0, 100.0, 0)

@@ -364,3 +364,10 @@ def test_scene_keys_in_the_mission(tmp_path):
     names = dict(zip(ds["surface_type"].attrs["flag_values"].tolist(),
                      ds["surface_type"].attrs["flag_meanings"].split()))
     assert {names[c] for c in np.unique(ds["surface_type"].values)} == {"blue_ice"}
+    # the views rebuild the scene the run flew over: the file's text with the mission's changes
+    from chirplidar.mission.view import result_terrain
+
+    moved = run_mission(mission, out=tmp_path / "h.nc", date_created=DATE,
+                        overrides=["scene.terrain.flat.height_m=250.0"]).dataset
+    lo, hi = result_terrain(moved).bounds
+    assert (lo[2], hi[2]) == pytest.approx((250.0, 250.0))

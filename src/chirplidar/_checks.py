@@ -106,3 +106,17 @@ def generator(name: str, value) -> np.random.Generator:
 def out(arr: np.ndarray):
     """0-d results as Python floats, arrays unchanged."""
     return float(arr) if np.ndim(arr) == 0 else arr
+
+
+def png_path(name: str, value):
+    """``value`` as a ``pathlib.Path`` naming a ``.png`` file; ValueError naming ``name``."""
+    import os
+    from pathlib import Path
+
+    try:
+        path = Path(os.fspath(value))
+    except TypeError:
+        raise ValueError(f"{name}: expected a path, got {type(value).__name__}") from None
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{name}: must name a .png file, got {str(path)!r}")
+    return path

@@ -9,6 +9,8 @@ one shot of the survey, as ``chirplidar run`` computes it (:mod:`chirplidar.miss
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import xarray as xr
 
@@ -37,10 +39,21 @@ def simulate_shot(config: MissionConfig, seed: int | None = None, tier: str = "r
     ``f_beat_hz`` (and ``spectrum`` for the rf tier when asked).
 
     Units are those of ``OUTPUT_UNITS`` (dBm, dBm/Hz, m, dB). Zero power reads -inf dB, never NaN.
-    The seed defaults to the configuration's ``seed``.
+    The seed defaults to the configuration's ``seed``. The shot sees the configuration's own
+    channel (``channel.distance_m``, the target); for a survey mission that is not the mission's
+    geometry: :func:`simulate_mission_shot` evaluates a shot of the survey (a UserWarning says so).
     """
+    _warn_if_survey(config, "simulate_shot", "simulate_mission_shot")
     raw = _tier(tier)(config, _rng(config, seed), batch=1, keep_spectrum=return_spectrum)
     return _shot_floats(raw)
+
+
+def _warn_if_survey(config: MissionConfig, name: str, instead: str) -> None:
+    if config.survey is not None:
+        warnings.warn(f"{name}: this configuration is a survey mission, evaluated here on its "
+                      f"lab channel (channel.distance_m = {config.channel.distance_m:g} m), not "
+                      f"at the mission's geometry; {instead}(mission_path, ...) flies it",
+                      UserWarning, stacklevel=3)
 
 
 def _shot_floats(raw: dict) -> dict:
@@ -123,8 +136,10 @@ def sweep(config: MissionConfig, vary: str, start: float, stop: float, n: int, r
     """Vary one parameter (thesis or project name) over ``n`` points, ``repeat`` shots each.
 
     Each point draws from its own child of the run's SeedSequence, so a point's result does not
-    depend on how many points the sweep has before it.
+    depend on how many points the sweep has before it. Like :func:`simulate_shot`, on the
+    configuration's own channel: :func:`sweep_mission` sweeps a survey mission at its geometry.
     """
+    _warn_if_survey(config, "sweep", "sweep_mission")
     key = resolve_key(vary)
     xs = _sweep_values(start, stop, n, scale)
     run = _tier(tier)

@@ -258,9 +258,8 @@ def cmd_sweep(args) -> int:
     return 0
 
 
-def cmd_run(args) -> int:
-    from .mission.runner import format_summary, run_mission
-
+def _check_cluster_args(args) -> None:
+    """``--workers`` / ``--scheduler`` of ``run`` and ``study``."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     if args.workers is not None and args.scheduler is not None:
@@ -268,6 +267,12 @@ def cmd_run(args) -> int:
                          "cluster, --scheduler ADDRESS uses a running one")
     if args.scheduler is not None and not args.scheduler.strip():
         raise UsageError("--scheduler needs an address, e.g. tcp://127.0.0.1:8786")
+
+
+def cmd_run(args) -> int:
+    from .mission.runner import format_summary, run_mission
+
+    _check_cluster_args(args)
     try:
         result = run_mission(args.mission, overrides=args.set or [], tier=args.tier, out=args.out,
                              seed=args.seed, overwrite=args.overwrite,
@@ -406,20 +411,9 @@ def cmd_study(args) -> int:
     (:mod:`chirplidar.analysis.study`); a table, JSON, a plot and/or a NetCDF study file."""
     from .analysis.study import format_study, run_study, study_records
 
-    if args.mission is None:   # a MISSION written after --set lands in args.set
-        if args.set and "=" not in args.set[-1]:
-            args.mission = args.set.pop()
-        else:
-            raise UsageError("the following arguments are required: MISSION")
     if not args.vary:
         raise UsageError("--vary KEY=START:STOP:N or KEY=V1,V2,... is required")
-    if args.workers is not None and args.workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {args.workers}")
-    if args.workers is not None and args.scheduler is not None:
-        raise UsageError("--workers and --scheduler are exclusive: --workers N starts a local "
-                         "cluster, --scheduler ADDRESS uses a running one")
-    if args.scheduler is not None and not args.scheduler.strip():
-        raise UsageError("--scheduler needs an address, e.g. tcp://127.0.0.1:8786")
+    _check_cluster_args(args)
     if args.plot is not None and not args.plot.lower().endswith(".png"):
         raise UsageError(f"--plot {args.plot}: the plot file must end in .png")
     try:
@@ -748,7 +742,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run each point's chunks on a running Dask cluster (give --out on "
                         "storage its workers see: the points' temporary files go beside it)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=cmd_study)
+    p.set_defaults(func=cmd_study, subparser=p)
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
     p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
@@ -804,7 +798,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-        if args.command in ("shot", "sweep"):
+        if args.command in ("shot", "sweep", "study"):
             _fix_mission_after_set(args.subparser, args)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)

@@ -96,10 +96,12 @@ def _known(key: str) -> bool:
     return key in PROJECT_KEYS or _is_scene_override(key)
 
 
-def scene_overrides(config: MissionConfig) -> dict[str, Any]:
-    """The mission's changes to its scene file: scene dotted key -> value (empty if none)."""
-    return {k[len(SCENE_PREFIX):]: v for k, v in config_flat(config).items()
-            if _is_scene_override(k)}
+def scene_overrides(config: MissionConfig | str) -> dict[str, Any]:
+    """The mission's changes to its scene file: scene dotted key -> value (empty if none), from
+    a configuration or its TOML text (e.g. a results file's ``configuration`` attribute)."""
+    flat = (_flatten(tomllib.loads(config)) if isinstance(config, str)
+            else config_flat(config))
+    return {k[len(SCENE_PREFIX):]: v for k, v in flat.items() if _is_scene_override(k)}
 
 
 def _canonical(flat: Mapping[str, Any], source: str) -> dict[str, Any]:

@@ -14,16 +14,31 @@ BOUNDS_OPTION = "--bounds"
 
 
 def result_terrain(ds):
-    """The terrain a result was computed on (from its ``scene_file``; cached generated terrain
-    loads fast), or None with a warning when the scene file is gone."""
-    from .scene import load_scene
+    """The terrain a result was computed on: its scene as stored in the file
+    (``scene_configuration``, with the mission's ``scene.<key>`` changes from ``configuration``;
+    relative terrain paths are read beside ``scene_file``; cached generated terrain loads fast),
+    or None with a warning when it cannot be rebuilt."""
+    from ..config import ConfigError
+    from ..config.loader import scene_overrides
+    from .scene import load_scene, scene_from_text
 
     scene_file = ds.attrs.get("scene_file")
-    if not scene_file or not Path(scene_file).is_file():
-        warnings.warn(f"scene file {scene_file!r} of this result is not available: drawing the "
-                      "track without terrain", stacklevel=2)
+    text = ds.attrs.get("scene_configuration")
+    try:
+        changes = scene_overrides(str(ds.attrs.get("configuration", "")))
+        if text:
+            base = Path(scene_file).parent if scene_file else Path(".")
+            return scene_from_text(str(text), base_dir=base, path=scene_file,
+                                   overrides=changes).terrain
+        if scene_file and Path(scene_file).is_file():
+            return load_scene(scene_file, overrides=changes).terrain
+    except (ConfigError, ValueError, OSError) as exc:   # TOMLDecodeError is a ValueError
+        warnings.warn(f"the scene of this result cannot be rebuilt ({exc}): drawing it without "
+                      "terrain", stacklevel=2)
         return None
-    return load_scene(scene_file).terrain
+    warnings.warn(f"this result names no scene (scene_file {scene_file!r}): drawing it without "
+                  "terrain", stacklevel=2)
+    return None
 
 
 def parse_bounds(text: str) -> tuple[float, float, float, float]:

@@ -5,6 +5,9 @@ draw. Submodules:
 
 - :mod:`chirplidar.viz.spectrum`: the dechirped beat spectrum of one shot (thesis Fig. 5.2).
 - :mod:`chirplidar.viz.sensitivity`: sweep results and SNR-versus-power curves (thesis Fig. 5.7).
+- :mod:`chirplidar.viz.planmap`: plan-view maps (coverage grids, tracks, footprints, hillshade).
+- :mod:`chirplidar.viz.study`: mission studies against one or two keys.
+- :mod:`chirplidar.viz.scene3d`: the pyvista 3-D track view.
 """
 
 from __future__ import annotations

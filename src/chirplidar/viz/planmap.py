@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import textwrap
 import warnings
 from collections.abc import Mapping
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _checks
 from ._mpl import plt, save
 from .scene3d import _DETECTED_COLORS, _FLAG_COLORS, _percentile_clim, check_bounds_m
 
@@ -1087,12 +1087,7 @@ def plot_plan_map(png, *, terrain=None, tracks=None, grid=None, var=None, shots=
     arrow in the upper-right one. Legend entries (tracks, region, crossovers, categories, no-value
     shots, contours) go below the map. Bad input raises ValueError naming the argument.
     """
-    try:
-        path = Path(os.fspath(png))
-    except TypeError:
-        raise ValueError(f"png: expected a path, got {type(png).__name__}") from None
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"png: must name a .png file, got {str(path)!r}")
+    path = _checks.png_path("png", png)
     fig = plan_map_figure(terrain=terrain, tracks=tracks, grid=grid, var=var, shots=shots,
                           shot_var=shot_var, region=region, crossovers=crossovers,
                           summary=summary, title=title, bounds=bounds, epsg=epsg,

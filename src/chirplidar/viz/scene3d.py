@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _checks
+
 __all__ = ["auto_vertical_exaggeration", "check_bounds_m", "render_track",
            "showable_variables"]
 
@@ -127,12 +129,7 @@ def _has_display() -> bool:
 
 
 def _check_png(png) -> Path:
-    try:
-        path = Path(os.fspath(png))
-    except TypeError:
-        raise ValueError(f"png must be a path, got {type(png).__name__}") from None
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"png must name a .png file, got {str(path)!r}")
+    path = _checks.png_path("png", png)
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise ValueError(f"png: directory {directory} does not exist")
