@@ -15,11 +15,11 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The main job: a UAV survey over a generated Greenland outlet glacier, its 3-D view, and its
-# coverage (a CF grid of 50 m cells and its map).
+# coverage (a CF grid of 40 m cells, one row per survey line, and its map).
 demo: install
 	$(BIN)/chirplidar run missions/greenland_uav.toml --out outputs/greenland_uav.nc --overwrite
 	$(BIN)/chirplidar view outputs/greenland_uav.nc --png outputs/greenland_uav.png
-	$(BIN)/chirplidar coverage outputs/greenland_uav.nc --cell-m 50 --overwrite \
+	$(BIN)/chirplidar coverage outputs/greenland_uav.nc --cell-m 40 --overwrite \
 	    --out outputs/greenland_uav_coverage.nc --png outputs/greenland_uav_coverage.png
 
 # Thesis Fig. 5.7 (sensitivity of the three receivers) into outputs/fig5_7_sensitivity.{png,csv}.

@@ -90,3 +90,22 @@ def test_config_with_fills_an_absent_optional_section():
 
     cfg = config_with(load_mission(BENCH), {"effects.speckle.cells": 4, "effects.enabled": ["speckle"]})
     assert cfg.effects.speckle.cells == 4
+
+
+def test_binary_mission_file_is_one_clear_error(tmp_path):
+    path = tmp_path / "results.nc"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n\x00\xff\xfe")
+    with pytest.raises(ConfigError, match="not UTF-8 text"):
+        load_mission(path)
+
+
+def test_epoch_given_as_a_toml_date_time():
+    """``--set survey.epoch_utc=2026-08-15T12:00:00Z`` is a TOML date-time, not a string: it is
+    the same instant; a local time without a zone is refused."""
+    from pathlib import Path
+
+    mission = Path(__file__).resolve().parents[1] / "missions" / "greenland_uav.toml"
+    cfg = load_mission(mission, ["survey.epoch_utc=2026-08-15T14:00:00+02:00"])
+    assert cfg.survey.epoch_utc == "2026-08-15T12:00:00Z"
+    with pytest.raises(ConfigError, match="time zone"):
+        load_mission(mission, ["survey.epoch_utc=2026-08-15T12:00:00"])

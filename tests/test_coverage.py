@@ -265,8 +265,53 @@ def test_cli_json_png_and_bad_input(lattice_file, tmp_path, capsys):
     out.write_text("keep me")
     assert "exists" in bad(path, "--cell-m", "100", "--out", out)
     assert out.read_text() == "keep me"
+    assert "given twice" in bad(path, path, "--cell-m", "100")
+    (tmp_path / "adir.nc").mkdir()
+    assert "is a directory" in bad(path, "--cell-m", "100", "--out", tmp_path / "adir.nc",
+                                   "--overwrite")
+    assert "must end in .png" in bad(path, "--cell-m", "100", "--png", tmp_path / "m.jpg")
+    assert "does not exist" in bad(path, "--cell-m", "100", "--png", tmp_path / "no" / "m.png")
+    new = tmp_path / "new.nc"
+    (tmp_path / "adir.png").mkdir()
+    assert "is a directory" in bad(path, "--cell-m", "100", "--out", new, "--png",
+                                   tmp_path / "adir.png")
+    assert not new.exists()                       # checked before any work: nothing written
     with pytest.raises(CoverageError, match="--region"):
         compute_coverage([none], cell_m=100.0, region=str(tmp_path / "region.txt"))
+
+
+def test_tracks_on_cell_edges_are_flagged(tmp_path, capsys):
+    """Lines flown along grid lines put their footprints in the cells on both sides: the
+    summary says what fraction lies within C / 100 of an edge and the command warns. Reference:
+    footprints scattered at random lie there with probability 1 - 0.98^2 = 3.96 %."""
+    rows = [_line(100.0 * k, -500, 200.0 * k - 400.0, 500, 200.0 * k - 400.0, 10.0, 10.0, 100.0, k)
+            for k in range(5)]                     # y = -400, -200, ..., 400: cell edges
+    shots = _cat(*rows)
+    shots["y"] = shots["y"] + 0.05 * (-1.0) ** np.arange(shots["y"].size)   # 5 cm pointing noise
+    path = _write(tmp_path / "edges.nc", shots)
+    args = ["coverage", str(path), "--cell-m", "50", "--json", "--no-progress",
+            "--bounds", f"{X0 - 500},{Y0 - 500},{X0 + 500},{Y0 + 500}"]
+    assert main(args) == 0
+    out = capsys.readouterr()
+    s = json.loads(out.out)
+    assert s["footprints_on_cell_edges"] == 1.0
+    assert s["cells_covered"] == 5 * 2 * 20         # two rows of 20 cells per line
+    assert "cell edge" in out.err
+    # shifted by half a cell: each line in one row, no warning
+    assert main(["coverage", str(path), "--cell-m", "50", "--json", "--no-progress",
+                 "--bounds", f"{X0 - 500},{Y0 - 525},{X0 + 500},{Y0 + 525}"]) == 0
+    out = capsys.readouterr()
+    s = json.loads(out.out)
+    assert s["footprints_on_cell_edges"] < 0.05 and s["cells_covered"] == 5 * 20
+    assert "cell edge" not in out.err
+    rng = np.random.default_rng(3)
+    n = 200_000
+    scattered = {"delta_time": np.arange(n) * 0.01, "x": X0 + rng.uniform(-500, 500, n),
+                 "y": Y0 + rng.uniform(-500, 500, n), "detected": np.ones(n, np.int8),
+                 "beam": np.zeros(n, int)}
+    p2 = _write(tmp_path / "scattered.nc", scattered)
+    cov = compute_coverage([p2], cell_m=50.0, bounds=(X0 - 500, Y0 - 500, X0 + 500, Y0 + 500))
+    assert cov.summary["footprints_on_cell_edges"] == pytest.approx(1 - 0.98 ** 2, abs=0.002)
 
 
 def test_geojson_region(lattice_file, tmp_path):
@@ -285,3 +330,13 @@ def test_geojson_region(lattice_file, tmp_path):
     assert cov.summary["region"]["kind"] == "geojson"
     assert cov.summary["cells_in_region"] == 30          # 5 x 6 cells of the west half
     assert cov.summary["cells_covered"] == 30 - 4        # the hole's four cells
+    bowtie = tmp_path / "bowtie.geojson"
+    bowtie.write_text(json.dumps({"type": "Polygon", "coordinates": [
+        [ring[0], ring[2], ring[1], ring[3], ring[0]]]}))
+    with pytest.raises(CoverageError, match="self-intersecting"):
+        compute_coverage([path], cell_m=100.0, region=str(bowtie))
+    far = tmp_path / "far.geojson"            # a polygon at 0 N 0 E: misses the scene
+    far.write_text(json.dumps({"type": "Polygon", "coordinates": [
+        [[0, 0], [0.1, 0], [0.1, 0.1], [0, 0.1], [0, 0]]]}))
+    with pytest.raises(CoverageError, match="misses"):
+        compute_coverage([path], cell_m=100.0, region=str(far))

@@ -220,6 +220,98 @@ def test_colour_bar_label_has_long_name_and_units(var, label):
         plt.close(fig)
 
 
+def _mesh(fig):
+    from matplotlib.collections import QuadMesh
+
+    (mesh,) = [c for c in fig.axes[0].collections if isinstance(c, QuadMesh)]
+    return mesh
+
+
+def test_sparse_count_grid_gets_its_min_max_not_a_diverging_scale():
+    """The trial's case (a satellite second over a 20 km scene: 0.6 % of the cells hold
+    detections): the 1st-99th percentile of a grid of mostly zeros is 0..0; the colour range
+    falls back to the data's min-max, 0..160 here, sequential (viridis), never -1..1 RdBu."""
+    grid = _grid()
+    counts = np.zeros(grid["detected_shots"].shape, np.int32)
+    counts[3, 5], counts[4, 6], counts[5, 7], counts[6, 8] = 40, 80, 120, 160   # 4 of 580 cells
+    grid["detected_shots"] = grid["detected_shots"].copy(data=counts)
+    inside = counts[:, 1:]                                   # column 0 is outside the region
+    assert np.percentile(inside, [1, 99]).tolist() == [0.0, 0.0]
+    fig = plan_map_figure(grid=grid, var="detected_shots")
+    try:
+        mesh = _mesh(fig)
+        assert mesh.get_cmap().name.startswith("viridis")
+        assert (mesh.norm.vmin, mesh.norm.vmax) == (0.0, 160.0)
+        cbar_ticks = fig.axes[1].get_yticks()
+        assert cbar_ticks.min() >= 0.0                        # no negative counts on the bar
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize(("value", "lo", "hi"), [(37.5, 35.625, 39.375), (0.0, 0.0, 1.0),
+                                                 (-2.0, -2.1, -1.9)])
+def test_all_equal_field_gets_a_small_range_holding_its_value(value, lo, hi):
+    """An all-equal field: +-5 % around its value (0..1 for zeros), sequential."""
+    grid = _grid()
+    grid["gap"] = grid["gap"].copy(data=np.full(grid["gap"].shape, value))
+    fig = plan_map_figure(grid=grid, var="gap")
+    try:
+        mesh = _mesh(fig)
+        assert mesh.get_cmap().name.startswith("viridis")
+        assert (mesh.norm.vmin, mesh.norm.vmax) == pytest.approx((lo, hi), rel=1e-12)
+        assert mesh.norm.vmin <= value <= mesh.norm.vmax
+    finally:
+        plt.close(fig)
+
+
+def test_shots_mostly_zero_get_min_max_and_signed_ones_stay_diverging():
+    """Footprints coloured by a value (``view --plan``'s path): 500 shots, 496 of them 0 and 4
+    between 0.4 and 0.7 (the 1st-99th percentile is 0..0), get 0..0.7 sequential; signed
+    values (mostly 0, one -0.1, one +0.3) get the diverging map symmetric about 0
+    (-0.3..0.3)."""
+    x, y = _track()
+    values = np.zeros(x.size)
+    values[100:104] = [0.4, 0.5, 0.6, 0.7]
+    assert np.percentile(values, [1, 99]).tolist() == [0.0, 0.0]
+    fig = plan_map_figure(shots=(x, y, values), shot_var={"name": "v", "units": "m"},
+                          epsg=3413)
+    try:
+        (pts,) = fig.axes[0].collections
+        assert pts.get_cmap().name.startswith("viridis")
+        assert (pts.norm.vmin, pts.norm.vmax) == (0.0, 0.7)
+    finally:
+        plt.close(fig)
+    values = np.zeros(x.size)
+    values[100], values[200] = -0.1, 0.3
+    fig = plan_map_figure(shots=(x, y, values), shot_var={"name": "v", "units": "m"},
+                          epsg=3413)
+    try:
+        (pts,) = fig.axes[0].collections
+        assert pts.get_cmap().name.startswith("RdBu_r")
+        assert (pts.norm.vmin, pts.norm.vmax) == (-0.3, 0.3)
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("label", [None, "survey polygon", "scene extent", "GeoJSON polygon"])
+def test_region_legend_entry_says_what_the_region_is(label, tmp_path):
+    kwargs = {} if label is None else {"region_label": label}
+    fig = plan_map_figure(tracks=[_track()], epsg=3413,
+                          region=shapely.box(X0 - 1400, Y0 - 900, X0 + 1400, Y0 + 900), **kwargs)
+    try:
+        texts = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert (label or "region") in texts and "survey region" not in texts
+    finally:
+        plt.close(fig)
+    if label is not None:   # plot_plan_map passes it on
+        import inspect
+
+        assert inspect.signature(plot_plan_map).parameters["region_label"].default == "region"
+        out = plot_plan_map(tmp_path / "r.png", tracks=[_track()], region_label=label,
+                            region=shapely.box(X0 - 1400, Y0 - 900, X0 + 1400, Y0 + 900))
+        assert out.read_bytes()[:8] == PNG_MAGIC
+
+
 def test_flag_variable_gets_a_legend_not_a_colour_bar():
     fig = plan_map_figure(grid=_grid(), var="covered", tracks=[_track()])
     try:
@@ -344,8 +436,53 @@ def test_summary_box_formats_numbers():
         "crossovers: 3", "tier: link"]
     fig = plan_map_figure(tracks=[_track()], summary={"fraction_covered": 0.5})
     try:
-        (box,) = [a for a in fig.axes[0].artists if a.get_gid() == "summary"]
-        assert box.txt.get_text() == "fraction covered: 50.0 %"
+        assert _summary_columns(fig) == [["fraction covered: 50.0 %"]]
+    finally:
+        plt.close(fig)
+
+
+def _summary_columns(fig):
+    """The summary box's lines, column by column."""
+    from matplotlib.offsetbox import VPacker
+
+    (box,) = [a for a in fig.artists if a.get_gid() == "summary"]
+    columns = [c for c in box.findobj(VPacker)]
+    return [[t.get_text() for t in col.findobj(plt.Text)] for col in columns]
+
+
+SUMMARY = {"fraction_covered": 0.873, "cells_covered": 12345, "cells_in_region": 14000,
+           "largest_gap_m": 1250.0, "median_height_precision_m": 0.0462,
+           "along_track_spacing_m": 0.2, "across_track_spacing_m": 97.5, "crossovers": 60,
+           "crossover_rms_m": 0.0613}
+
+
+@pytest.mark.parametrize("figsize_in", [None, (8.0, 6.0)])
+def test_summary_box_hides_nothing(figsize_in):
+    """The summary box lies outside the map (a grid covering the whole view is not hidden),
+    clear of the legend and inside the figure; its lines read down each column in the dict's
+    order; the scale bar and north arrow stay in the map's corners."""
+    fig = plan_map_figure(grid=_grid(), var="median_snr_db", tracks=[_track()],
+                          region=shapely.box(X0 - 1400, Y0 - 900, X0 + 1400, Y0 + 900),
+                          summary=SUMMARY, figsize_in=figsize_in)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        ax = fig.axes[0]
+        (box,) = [a for a in fig.artists if a.get_gid() == "summary"]
+        b = box.get_window_extent(renderer)
+        axes_box = ax.get_window_extent(renderer)
+        legend_box = fig.legends[0].get_window_extent(renderer)
+        assert not b.overlaps(axes_box) and not b.overlaps(legend_box)
+        assert b.y1 < legend_box.y0 < axes_box.y0                     # map, legend, summary
+        assert 0 <= b.x0 and b.x1 <= fig.bbox.width and 0 <= b.y0
+        xlabel = ax.xaxis.label.get_window_extent(renderer)
+        assert not b.overlaps(xlabel)
+        columns = _summary_columns(fig)
+        assert len(columns) > 1                                       # 9 lines side by side
+        assert [line for col in columns for line in col] == \
+            planmap._summary_text(SUMMARY).splitlines()
+        (bar,) = [a for a in ax.artists if a.get_gid() == "scale_bar"]
+        assert axes_box.contains(*bar.get_window_extent(renderer).p0)
     finally:
         plt.close(fig)
 
@@ -362,6 +499,7 @@ def test_summary_box_formats_numbers():
     ({"tracks": "TRACK", "region": "polygon"}, r"^region: expected a shapely Polygon"),
     ({"tracks": "TRACK", "epsg": 4326}, r"^epsg: 4326 must be a projected CRS"),
     ({"tracks": "TRACK", "summary": [("fraction_covered", 0.5)]}, r"^summary: expected a dict"),
+    ({"tracks": "TRACK", "region_label": ""}, r"^region_label: expected a non-empty string"),
     ({}, r"^nothing to draw"),
 ])
 def test_bad_input_names_the_argument(tmp_path, kwargs, match):

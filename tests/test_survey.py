@@ -251,6 +251,18 @@ def test_existing_output_needs_overwrite(flat_run, capsys):
     assert res.path.read_bytes() == before and os.stat(res.path).st_mtime_ns == mtime
 
 
+def test_view_refuses_what_is_not_a_results_file(tmp_path, capsys):
+    text = tmp_path / "notes.nc"
+    text.write_text("not netcdf")
+    other = tmp_path / "other.nc"
+    xr.Dataset({"a": ("t", np.arange(3.0))}).to_netcdf(other)
+    for path, why in ((text, "not a readable NetCDF"), (other, "not a chirplidar results")):
+        for extra in ([], ["--plan"]):
+            assert main(["view", str(path), "--png", str(tmp_path / "v.png"), *extra]) == 2
+            err = capsys.readouterr().err.strip()
+            assert why in err and len(err.splitlines()) == 1
+
+
 def test_self_intersecting_polygon_is_refused(tmp_path):
     scene = write_scene(tmp_path, "flat3", 'flat height_m = 100.0\nmaterial = "snow"')
     bowtie = "[[-500.0, -500.0], [500.0, 500.0], [500.0, -500.0], [-500.0, 500.0]]"

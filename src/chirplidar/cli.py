@@ -287,25 +287,47 @@ def cmd_run(args) -> int:
     return 0
 
 
-#: Summary figures shown on the coverage map.
-_MAP_SUMMARY = ("fraction_covered", "cells_covered", "cells_in_region", "largest_gap_m",
-                "median_height_precision_m", "along_track_spacing_m", "across_track_spacing_m",
-                "crossovers", "crossover_rms_m")
+#: Summary figures shown on the coverage map: its label (the map's box formats by the suffix)
+#: and the summary's key.
+_MAP_SUMMARY = {"fraction_covered": "fraction_covered", "cells_covered": "cells_covered",
+                "cells_in_region": "cells_in_region", "largest_gap_m": "largest_gap_m",
+                "median_height_error_of_a_shot_m": "median_height_precision_m",
+                "along_track_spacing_m": "along_track_spacing_m",
+                "across_track_spacing_m": "across_track_spacing_m",
+                "crossovers": "crossovers", "crossover_rms_m": "crossover_rms_m"}
+
+
+def _output_path(option: str, value, suffix: str, *, overwrite: bool | None) -> Path:
+    """An output file named on the command line, checked before any work: its suffix, an
+    existing and writable directory, not a directory itself, and (``overwrite`` not None) not an
+    existing file unless ``overwrite``."""
+    import os
+
+    path = Path(value)
+    if path.suffix.lower() != suffix:
+        raise UsageError(f"{option} {path}: the file must end in {suffix}")
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a directory")
+    if overwrite is not None and path.exists() and not overwrite:
+        raise UsageError(f"{option} {path} exists: pass --overwrite to replace it "
+                         "(nothing was computed)")
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise UsageError(f"{option} {path}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK):
+        raise UsageError(f"{option} {path}: directory {directory} is not writable")
+    return path
 
 
 def cmd_coverage(args) -> int:
-    from .analysis.coverage import (GRID_VARIABLES, compute_coverage, summary_json,
-                                    write_coverage)
+    from .analysis.coverage import (EDGE_WARNING, GRID_VARIABLES, compute_coverage,
+                                    summary_json, write_coverage)
 
+    out = png = None
     if args.out is not None:
-        out = Path(args.out)
-        if out.suffix != ".nc":
-            raise UsageError(f"--out {out}: the grid file must end in .nc")
-        if out.exists() and not args.overwrite:
-            raise UsageError(f"--out {out} exists: pass --overwrite to replace it "
-                             "(nothing was computed)")
-        if not out.parent.is_dir():
-            raise UsageError(f"--out {out}: directory {out.parent} does not exist")
+        out = _output_path("--out", args.out, ".nc", overwrite=args.overwrite)
+    if args.png is not None:
+        png = _output_path("--png", args.png, ".png", overwrite=None)   # a picture: replaced
     if args.var not in GRID_VARIABLES:
         raise UsageError(f"--var {args.var}: not a coverage grid variable; choose one of "
                          f"{', '.join(GRID_VARIABLES)}")
@@ -323,12 +345,19 @@ def cmd_coverage(args) -> int:
                                progress=not args.no_progress)
     except ValueError as exc:   # CoverageError: one line naming the file or option
         raise UsageError(str(exc)) from None
-    if args.out is not None:
-        path = write_coverage(cov, args.out, overwrite=args.overwrite)
-        print(f"wrote {path}", file=sys.stderr)
-    if args.png is not None:
-        path = _coverage_map(cov, args)
-        print(f"wrote {path}", file=sys.stderr)
+    edge = cov.summary["footprints_on_cell_edges"]
+    if edge > EDGE_WARNING:
+        warnings.warn(f"{100 * edge:.0f} % of the footprints lie within 1 % of a cell width of "
+                      "a cell edge (tracks along grid lines): they count in the cells on both "
+                      "sides; shift the grid (--bounds) or change --cell-m to see the "
+                      "coverage of a grid not aligned with the tracks")
+    try:   # the map first: a map that cannot be written leaves no grid file behind
+        if png is not None:
+            print(f"wrote {_coverage_map(cov, args, png)}", file=sys.stderr)
+        if out is not None:
+            print(f"wrote {write_coverage(cov, out, overwrite=args.overwrite)}", file=sys.stderr)
+    except OSError as exc:
+        raise UsageError(f"cannot write {exc.filename or ''}: {exc.strerror or exc}") from None
     if args.json:
         print(summary_json(cov.summary))
     else:
@@ -336,7 +365,7 @@ def cmd_coverage(args) -> int:
     return 0
 
 
-def _coverage_map(cov, args):
+def _coverage_map(cov, args, png):
     """The plan-view map of a coverage result (hillshade of the first file's scene)."""
     import xarray as xr
 
@@ -349,9 +378,19 @@ def _coverage_map(cov, args):
     names = ", ".join(Path(p).name for p in args.results)
     title = (f"Coverage of {names}: {cov.grid[args.var].attrs['long_name']}, "
              f"{s['cell_m']:g} m cells")
-    return plot_plan_map(args.png, terrain=terrain, tracks=list(cov.tracks), grid=cov.grid,
-                         var=args.var, region=cov.region, crossovers=cov.crossovers,
-                         summary={k: s[k] for k in _MAP_SUMMARY}, title=title, epsg=cov.epsg)
+    region = s["region"]
+    label = {"survey": "survey polygon", "scene": "scene extent", "bounds": "--bounds box",
+             "footprints": "footprints' extent"}.get(region["kind"],
+                                                     Path(region.get("file", "")).name)
+    grid = cov.grid
+    if args.var in ("shots", "detected_shots", "tracks"):   # cells no footprint fell in: clear,
+        grid = grid.copy()                                   # the terrain shows through
+        grid[args.var] = grid[args.var].where(grid["shots"] > 0)
+    return plot_plan_map(png, terrain=terrain, tracks=list(cov.tracks), grid=grid,
+                         var=args.var, region=cov.region, region_label=f"region: {label}",
+                         crossovers=cov.crossovers,
+                         summary={label: s[k] for label, k in _MAP_SUMMARY.items()},
+                         title=title, epsg=cov.epsg)
 
 
 def format_coverage_summary(s: dict) -> str:
@@ -409,32 +448,56 @@ def cmd_view(args) -> int:
 def cmd_study(args) -> int:
     """``chirplidar study``: the survey mission at every point of a grid of one or two keys
     (:mod:`chirplidar.analysis.study`); a table, JSON, a plot and/or a NetCDF study file."""
-    from .analysis.study import format_study, run_study, study_records
+    from .analysis.study import check_output_file, format_study, run_study, study_records
 
     if not args.vary:
         raise UsageError("--vary KEY=START:STOP:N or KEY=V1,V2,... is required")
     _check_cluster_args(args)
     if args.plot is not None and not args.plot.lower().endswith(".png"):
         raise UsageError(f"--plot {args.plot}: the plot file must end in .png")
+    if args.plot is not None:   # before any point runs (--out: run_study checks it)
+        check_output_file("--plot", args.plot, ".png", make_parents=True)
+    plot_error: list[OSError] = []
+
+    def plot_first(ds) -> bool:
+        # the plot before the study file: a plot that cannot be saved leaves no study file
+        from .viz.study import plot_study
+
+        existed = Path(args.plot).exists()
+        try:
+            plot_study(ds, args.plot)
+        except OSError as exc:
+            plot_error.append(exc)
+            if not existed:
+                Path(args.plot).unlink(missing_ok=True)   # no partial PNG either
+            return False
+        return True
+
     try:
         ds = run_study(args.mission, args.vary, overrides=args.set or [], span_s=args.span_s,
                        cell_m=args.cell_m, tier=args.tier, seed=args.seed,
                        workers=args.workers, scheduler=args.scheduler,
-                       progress=not args.no_progress, out=args.out, overwrite=args.overwrite)
+                       progress=not args.no_progress, out=args.out, overwrite=args.overwrite,
+                       before_write=plot_first if args.plot else None)
     except FileExistsError as exc:
+        raise UsageError(str(exc)) from None
+    except OSError as exc:   # e.g. the study file on a full disk: one line, no traceback
         raise UsageError(str(exc)) from None
     if args.json:
         print(_dump_json([{k: _json_number(v) for k, v in rec.items()}
                           for rec in study_records(ds)]))
     else:
         print(format_study(ds))
+    if plot_error:
+        exc = plot_error[0]
+        kept = f"; the study file {args.out} was not written" if args.out is not None else ""
+        print(f"chirplidar study: error: --plot {args.plot}: cannot save the plot "
+              f"({exc.strerror or exc}){kept}", file=sys.stderr)
+        return 1
+    if args.plot:
+        print(f"wrote {args.plot}", file=sys.stderr)
     if args.out is not None:
         print(f"wrote {args.out}", file=sys.stderr)
-    if args.plot:
-        from .viz.study import plot_study
-
-        path = plot_study(ds, args.plot)
-        print(f"wrote {path}", file=sys.stderr)
     return 0
 
 
@@ -732,7 +795,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print a JSON list, one object per point: the varied keys and the "
                         "metrics")
     p.add_argument("--plot", metavar="PNG", default=None,
-                   help="draw the metrics against the varied key(s)")
+                   help="draw the metrics against the varied key(s) (checked writable before "
+                        "any point runs; written before --out, so a plot that cannot be saved "
+                        "leaves no study file)")
     p.add_argument("--out", metavar="STUDY.nc", default=None,
                    help="write the study (one dimension per varied key) to NetCDF")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

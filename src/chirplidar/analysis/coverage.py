@@ -26,7 +26,7 @@ Definitions
   predicts); ``height_precision_measured`` and ``height_precision_predicted`` are these divided
   by sqrt(N), the precision of the cell's mean height from N detected shots.
 * ``median_snr_db``: median of ``snr_db`` over the cell's shots (detected or not), from a
-  histogram per cell over ``SNR_RANGE_DB`` (0.1 dB bins up to 2^24 / 1202 cells, coarser for
+  histogram per cell over ``SNR_RANGE_DB`` (0.1 dB bins up to 2^25 / 1202 cells, coarser for
   more; the width used is in the variable's ``comment``), interpolated linearly within the
   median's bin (the grouped median: exact to the bin width, closer where the SNRs spread over
   several bins); -inf where the median lies below the range (or the power is zero).
@@ -36,9 +36,14 @@ Definitions
 * ``largest_gap_m``: the largest distance from any point of the region to the nearest detected
   footprint centre, found by branch and bound on boxes (:func:`_largest_gap`) to within C/20
   of the representatives' value: C/20 + C/28 < C/10 of the true largest gap.
+* Cell edges: a track flown along a grid line puts its footprints, scattered by the pointing
+  noise, in the cells on both sides. ``footprints_on_cell_edges`` in the summary is the fraction
+  of the footprints within C / 100 of an edge (about 4 % for scattered ones); the command line
+  warns above a quarter.
 * Crossovers: the tracks' footprint polylines are thinned to vertices every ``cell_m / 2`` along
-  track (:data:`TRACK_STEP_PER_CELL`), intersected where they cross at 5 degrees or more (a
-  repeated line is not a crossover), and each crossing is refined on the full-rate
+  track (:data:`TRACK_STEP_PER_CELL`; a beam whose footprints do not follow a line, a conical
+  scan, has none), intersected where they cross at 5 degrees or more (a repeated line is not a
+  crossover), and each crossing is refined on the full-rate
   footprints around it: the crossing point of the two full-rate polylines, each track's time
   there (interpolated), and the nearest detected shot of each track: ``dh = h_li(later) -
   h_li(earlier)`` (the crossover residual altimetry missions check themselves with) and
@@ -80,9 +85,11 @@ __all__ = ["CoverageResult", "CoverageError", "GRID_VARIABLES", "SUMMARY_KEYS",
 
 BLOCK_SHOTS = 1 << 20          # shot-beams read per block
 WINDOW_CACHE_BYTES = 1 << 28   # crossovers: HDF5 chunks kept decompressed (at least two)
+EDGE_BAND = 0.01               # footprints closer than C / 100 to a cell edge are "on" it ...
+EDGE_WARNING = 0.25            # ... which ~4 % of scattered ones are; above this, a warning
 SNR_RANGE_DB = (-30.0, 90.0)   # per-cell SNR histograms: this range, plus under/overflow bins
-SNR_BIN_CHOICES_DB = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0)   # the finest whose histograms fit:
-SNR_HISTOGRAM_ENTRIES = 1 << 24  # cells x bins at most (64 MB of counts)
+SNR_BIN_CHOICES_DB = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)   # the finest whose histograms fit:
+SNR_HISTOGRAM_ENTRIES = 1 << 25  # cells x bins at most (128 MB of counts)
 GAP_PIXELS_PER_CELL = 20       # detection representatives: pixels of cell_m / 20
 GAP_TOLERANCE_PER_CELL = 20    # largest gap: branch and bound to within C / 20
 PLATFORM_STRIDE = 8            # flight length: chords over 8 shots (a turn of radius r at chord
@@ -93,7 +100,8 @@ SUMMARY_KEYS = ("cells_in_region", "cells_covered", "fraction_covered", "largest
                 "median_detections_per_cell", "median_height_precision_m",
                 "median_height_precision_predicted_m", "along_track_spacing_m",
                 "across_track_spacing_m", "track_length_m", "flight_time_s", "crossovers",
-                "crossover_rms_m", "shots", "detected_shots", "cell_m", "min_detections",
+                "crossover_rms_m", "shots", "detected_shots", "footprints_on_cell_edges",
+                "cell_m", "min_detections",
                 "map_scale_factor", "region", "files")
 
 _READ = ("x", "y", "detected", "snr_db", "h_li", "h_li_true", "h_li_sigma", "delta_time",
@@ -277,6 +285,7 @@ def _geojson_region(path: Path, epsg: int):
     from pyproj import Transformer
     from shapely.geometry import shape
     from shapely.ops import unary_union
+    from shapely.validation import explain_validity
 
     if path.suffix.lower() not in (".geojson", ".json"):
         raise CoverageError(f"--region {path}: expected survey, scene or a .geojson file")
@@ -299,6 +308,10 @@ def _geojson_region(path: Path, epsg: int):
                 raise CoverageError(f"--region {path}: a bad polygon ({exc})") from None
     if not geoms:
         raise CoverageError(f"--region {path}: holds no Polygon or MultiPolygon")
+    bad = [explain_validity(g) for g in geoms if not g.is_valid]
+    if bad:
+        raise CoverageError(f"--region {path}: not a simple polygon ({bad[0]}); "
+                            "self-intersecting outlines are refused")
     lonlat = unary_union(geoms)
     lon0, lat0, lon1, lat1 = lonlat.bounds
     if not (-180 <= lon0 <= lon1 <= 360 and -90 <= lat0 <= lat1 <= 90):
@@ -407,7 +420,7 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
     a cell size <= 0 or larger than the region, a region that misses every footprint, no
     detected shot at all.
     """
-    from shapely import intersects_xy
+    from shapely import intersects_xy, wkt
     from shapely.geometry import box
 
     paths = [Path(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
@@ -425,6 +438,13 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
         raise CoverageError(f"--min-detections: expected an integer >= 1, got {min_detections!r}")
     min_detections = int(min_detections)
 
+    seen: dict = {}
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            raise CoverageError(f"{p}: given twice (also as {seen[key]}): its shots would count "
+                                "twice")
+        seen[key] = p
     files: list[_File] = []
     try:
         for i, p in enumerate(paths):
@@ -436,6 +456,11 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
                                 "coverage needs one grid")
         epsg = epsgs[0]
         geom, region_info = _region_polygon(region, bounds, files, epsg)
+        scenes = [wkt.loads(f.scene_wkt) for f in files if f.scene_wkt]
+        if scenes and not any(geom.intersects(sc) for sc in scenes):
+            raise CoverageError(f"{_region_option(region_info)}: the region "
+                                f"{_fmt_bounds(geom.bounds)} (EPSG:{epsg}) misses the results' "
+                                f"scenes ({'; '.join(_fmt_bounds(sc.bounds) for sc in scenes)})")
         rx0, ry0, rx1, ry1 = geom.bounds
         if cell_m > max(rx1 - rx0, ry1 - ry0):
             raise CoverageError(f"--cell-m {cell_m:g}: larger than the region "
@@ -454,9 +479,8 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
                                 "nothing to grid (check the run's detection threshold)")
         ex = acc["extent"]
         if acc["n_in_grid"] == 0 and not geom.intersects(box(*ex)):   # a hole is an answer
-            what = "--bounds" if region_info["kind"] == "bounds" else \
-                f"--region {region_info.get('file', region_info['kind'])}"
-            raise CoverageError(f"{what}: the region {_fmt_bounds(geom.bounds)} (EPSG:{epsg}) "
+            raise CoverageError(f"{_region_option(region_info)}: the region "
+                                f"{_fmt_bounds(geom.bounds)} (EPSG:{epsg}) "
                                 f"misses the results, whose footprints span {_fmt_bounds(ex)}")
         grid = _grid_dataset(acc, in_region, xc, yc, cell_m, min_detections, epsg)
         crossovers = track_crossovers(files, acc["tracks"], cell_m, epsg)
@@ -472,6 +496,10 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
                           epsg=epsg, tracks=tracks)
 
 
+def _region_option(info: dict) -> str:
+    return "--bounds" if info["kind"] == "bounds" else f"--region {info.get('file', info['kind'])}"
+
+
 def _fmt_bounds(b) -> str:
     return f"x {b[0]:.0f}..{b[2]:.0f} m, y {b[1]:.0f}..{b[3]:.0f} m"
 
@@ -481,8 +509,9 @@ def _snr_bin_db(n_cells: int) -> float:
     for w in SNR_BIN_CHOICES_DB:
         if n_cells * (round(span / w) + 2) <= SNR_HISTOGRAM_ENTRIES:
             return w
-    raise CoverageError(f"{n_cells} cells: too many for the SNR histograms; choose larger "
-                        "cells or a smaller region")
+    most = SNR_HISTOGRAM_ENTRIES // (round(span / SNR_BIN_CHOICES_DB[-1]) + 2)
+    raise CoverageError(f"--cell-m: {n_cells} cells over the region, more than the {most} the "
+                        "per-cell SNR histograms hold; choose larger cells or a smaller region")
 
 
 def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
@@ -507,7 +536,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
     reps = _Representatives(x0, y0, cell_m / GAP_PIXELS_PER_CELL)
     tracks = TrackBuilder(cell_m / TRACK_STEP_PER_CELL)
     flight_time = track_length = 0.0
-    n_shots = n_detected = n_in_grid = 0
+    n_shots = n_detected = n_in_grid = n_on_edge = 0
     ext = [np.inf, np.inf, -np.inf, -np.inf]
     inv_c = 1.0 / cell_m
     bar = None
@@ -536,8 +565,13 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
                 fx = (x - x0) * inv_c
                 fy = (y - y0) * inv_c
                 inside = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
-                cell = fy[inside].astype(np.int64) * nx + fx[inside].astype(np.int64)
+                fxi, fyi = fx[inside], fy[inside]
+                ixi, iyi = fxi.astype(np.int64), fyi.astype(np.int64)
+                cell = iyi * nx + ixi
                 n_in_grid += cell.size
+                rx, ry = fxi - ixi, fyi - iyi
+                n_on_edge += int(np.count_nonzero(
+                    (np.minimum(rx, 1.0 - rx) < EDGE_BAND) | (np.minimum(ry, 1.0 - ry) < EDGE_BAND)))
                 shots += np.bincount(cell, minlength=n_cells)
                 d_in = det[inside]
                 c_det = cell[d_in]
@@ -606,6 +640,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
             "spacing_hist": tracks.spacing_hist,
             "flight_time_s": flight_time, "track_length_m": track_length,
             "n_shots": n_shots, "n_detected": n_detected, "n_in_grid": n_in_grid,
+            "n_on_edge": n_on_edge,
             "extent": ext, "nx": nx, "ny": ny}
 
 
@@ -848,6 +883,7 @@ def _summary(grid, acc, crossovers, geom, region_info, cell_m, min_detections, e
         "crossovers": int(crossovers.sizes["crossover"]),
         "crossover_rms_m": float(np.sqrt(np.mean(dh ** 2))) if dh.size else float("nan"),
         "shots": int(acc["n_shots"]), "detected_shots": int(acc["n_detected"]),
+        "footprints_on_cell_edges": acc["n_on_edge"] / max(acc["n_in_grid"], 1),
         "cell_m": float(cell_m), "min_detections": int(min_detections),
         "map_scale_factor": _map_scale_factor(geom, epsg),
         "region": {**region_info, "epsg": epsg}, "files": [str(p) for p in paths],

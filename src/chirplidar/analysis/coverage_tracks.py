@@ -15,6 +15,8 @@ TRACK_STEP_PER_CELL = 2        # crossovers and across-track spacing: vertices e
 ACROSS_TRACK_SAMPLES = 20_000  # track vertices the across-track spacing's median is taken over
 SPACING_SAMPLE = 16            # the along-track spacing's median: of every 16th footprint pair
 MIN_CROSSING_ANGLE_DEG = 5.0   # tracks closer to parallel do not cross (a repeated line)
+LINE_TURN_DEG = 30.0           # a beam's footprints follow a line unless more than a fifth
+LINE_TURN_FRACTION = 0.2       # of the turns between its vertices exceed 30 degrees
 _SPACING_BINS_PER_DECADE = 2000  # along-track spacing median: log bins (0.12 %)
 _SPACING_DECADES = (-4.0, 7.0)
 
@@ -29,6 +31,7 @@ class Polyline:
     x: list = field(default_factory=list)
     y: list = field(default_factory=list)
     obs: list = field(default_factory=list)
+    line: bool = True     # False: the footprints do not follow a line (a conical scan): dropped
 
     def arrays(self):
         return (np.concatenate(self.x), np.concatenate(self.y), np.concatenate(self.obs))
@@ -101,6 +104,7 @@ class TrackBuilder:
         xs, ys, ts, os_ = x[idx[sample]], y[idx[sample]], tb[sample], o0 + idx[sample]
         lx, ly = (state[1], state[2]) if state is not None else (xs[0], ys[0])
         seg = np.hypot(np.diff(xs, prepend=lx), np.diff(ys, prepend=ly))
+        line = self._follows_a_line(xs, ys, seg)
         cuts = np.concatenate([[0], np.flatnonzero(new_at), [sample.size]])
         for a, z in zip(cuts[:-1], cuts[1:]):
             if z <= a:
@@ -116,7 +120,10 @@ class TrackBuilder:
             else:
                 lo = a
             pl = state[0]
-            if pl.track >= 0 and z > lo:
+            if not line and pl.line:     # no vertices: a scan's would be every footprint
+                pl.line = False
+                pl.x, pl.y, pl.obs = pl.x[:1], pl.y[:1], pl.obs[:1]
+            if pl.track >= 0 and pl.line and z > lo:
                 cum = state[4] + np.cumsum(seg[lo:z])
                 n_step = np.floor(cum / self.step)
                 prev = np.concatenate([[np.floor(state[4] / self.step)], n_step[:-1]])
@@ -128,9 +135,23 @@ class TrackBuilder:
             state[1], state[2], state[3] = xs[z - 1], ys[z - 1], os_[z - 1]
             self._open[(fi, b)] = state
 
+    def _follows_a_line(self, xs, ys, seg) -> bool:
+        """Whether a beam's footprints of a block follow a line: at most LINE_TURN_FRACTION of
+        the turns between successive vertices (a step apart) exceed LINE_TURN_DEG (a conical
+        scan, whose successive footprints lie across its circle, turns at every one)."""
+        k = np.floor(np.cumsum(seg) / self.step)
+        v = np.flatnonzero(np.diff(k, prepend=-1.0) > 0)
+        if v.size < 4:
+            return True
+        dx, dy = np.diff(xs[v]), np.diff(ys[v])
+        cross = dx[:-1] * dy[1:] - dy[:-1] * dx[1:]
+        dot = dx[:-1] * dx[1:] + dy[:-1] * dy[1:]
+        turn = np.abs(np.arctan2(cross, dot))
+        return float(np.mean(turn > np.radians(LINE_TURN_DEG))) <= LINE_TURN_FRACTION
+
     def _close(self, fi: int, b: int) -> None:
         state = self._open.pop((fi, b), None)
-        if state is None or state[0].track < 0:
+        if state is None or state[0].track < 0 or not state[0].line:
             return
         pl = state[0]
         if pl.obs[-1][-1] != state[3]:        # the track's last point ...

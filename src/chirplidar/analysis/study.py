@@ -54,11 +54,17 @@ Metrics of a point (:func:`point_metrics`), read from its results file chunk by 
 ``median_snr_db``               dB     median of ``snr_db`` over the surface shots
 ``snr_p10_db``, ``snr_p90_db``  dB     10th and 90th percentiles of the same (the fades)
 ``median_received_power_dbm``   dBm    median of ``received_power`` in dBm (``units.power_dbm``)
-``range_rms_m``                 m      sqrt(mean(range_error^2)) over the detected shots
-``height_precision_m``          m      std of ``h_li - h_li_true`` over the detected shots (ddof 0)
+``range_rms_m``                 m      sqrt(mean(range_error^2)) over the detected shots;
+                                       NaN with none
+``height_precision_m``          m      sample standard deviation (ddof 1, as ``chirplidar
+                                       coverage``'s ``height_error_std``) of ``h_li -
+                                       h_li_true`` over the detected shots; NaN below two
 ``fraction_covered``            1      with ``cell_m``: :mod:`chirplidar.analysis.coverage`
 ``flight_time_s``               s      last minus first shot time (``delta_time``) of the run
 ``shots``                       1      shot-beams of the run (trajectories x observations)
+``detected_shots``              1      detected shot-beams of the run: what ``range_rms_m``
+                                       and ``height_precision_m`` rest on (the table shows
+                                       it; the plot marks points resting on fewer than 10)
 ``detection_threshold_db``      dB     the point's ``survey.detection_threshold_db``
 ==============================  =====  ===================================================
 
@@ -74,8 +80,10 @@ statistics taken with ``np.partition``; beyond it they come from
 :func:`chirplidar.mission.runner._order_statistics` (a radix select over four more passes over the
 file, memory bounded by one chunk whatever the run's length). Both give the same bits. Sums are
 accumulated per chunk: the height spread with Chan et al.'s pairwise update of (n, mean, M2), the
-range RMS from the sum of squares. A metric without shots to compute it from is NaN (e.g.
-``range_rms_m`` when nothing is detected).
+range RMS from the sum of squares. A metric without shots to compute it from is NaN
+(``range_rms_m`` when nothing is detected, ``height_precision_m`` with fewer than two detected
+shots: one shot has no spread, and a standard deviation of 0 would read as a perfect
+precision).
 
 The study dataset
 -----------------
@@ -92,6 +100,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import sys
 import tempfile
@@ -132,11 +141,13 @@ METRICS: dict[str, tuple[str, str]] = {
                                           "shot-beams with a surface in the beam (zero: -inf "
                                           "dBm)")),
     "range_rms_m": ("m", "RMS of range_error over the detected shot-beams"),
-    "height_precision_m": ("m", ("standard deviation of h_li - h_li_true over the detected "
-                                 "shot-beams")),
+    "height_precision_m": ("m", ("sample standard deviation (ddof 1) of h_li - h_li_true "
+                                 "over the detected shot-beams (NaN below two)")),
     "fraction_covered": ("1", "covered fraction of the region (chirplidar.analysis.coverage)"),
     "flight_time_s": ("s", "last minus first shot time of the run"),
     "shots": ("1", "shot-beams of the run"),
+    "detected_shots": ("1", ("detected shot-beams of the run (what range_rms_m and "
+                             "height_precision_m rest on)")),
     "detection_threshold_db": ("dB", ("SNR a return needs to count as detected "
                                       "(survey.detection_threshold_db)")),
 }
@@ -144,6 +155,9 @@ METRICS: dict[str, tuple[str, str]] = {
 #: Results variables a point's metrics read.
 POINT_VARIABLES = ("detected", "snr_db", "received_power", "range_error", "h_li", "h_li_true",
                    "delta_time")
+
+#: Metrics that are whole numbers (int64 in the dataset, int in the records).
+_COUNTS = ("shots", "detected_shots")
 
 _DETECTED, _NO_SURFACE = 1, 2
 #: Stands for -inf (zero signal) in the radix select, which takes finite values: below every
@@ -691,13 +705,14 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
     out = {name: nan for name in METRICS if name not in ("fraction_covered",)}
     n_s = first.n_surface
     out["shots"] = int(first.n_shots)
+    out["detected_shots"] = int(first.n_det)
     out["detection_threshold_db"] = float(detection_threshold_db)
     out["flight_time_s"] = (first.t_max - first.t_min) if first.n_shots else nan
     out["detection_probability"] = first.n_det / n_s if n_s else nan
     if first.n_det:
         out["range_rms_m"] = math.sqrt(first.sq / first.n_det)
-    if first.h_n:
-        out["height_precision_m"] = math.sqrt(first.h_m2 / first.h_n)
+    if first.h_n >= 2:   # the sample standard deviation (ddof 1); one shot has no spread
+        out["height_precision_m"] = math.sqrt(first.h_m2 / (first.h_n - 1))
     if n_s:
         snr_q = {name: _quantile_ranks(n_s, q) for name, q in _QUANTILES.items()}
         pow_q = _quantile_ranks(n_s, 0.5)
@@ -760,7 +775,8 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
               workers: int | None = None, scheduler: str | None = None,
               progress: bool = False, out=None, overwrite: bool = False, cache_dir=None,
               on_point: Callable | None = None,
-              budget_bytes: int | None = None) -> xr.Dataset:
+              budget_bytes: int | None = None,
+              before_write: Callable | None = None) -> xr.Dataset:
     """Run the survey mission at every point of the grid of ``vary`` (one or two specs
     ``KEY=START:STOP:N[:log]`` / ``KEY=V1,V2,...`` or :class:`VaryAxis`) and return the study
     dataset (module docstring); with ``out`` (``.nc``) also write it atomically.
@@ -770,9 +786,14 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
     (``link``, ``baseband``, ``rf``) and ``seed``: as ``chirplidar run`` (the same seed at every
     point); ``workers``/``scheduler``: passed to every point's run; ``progress``: a bar over the
     points. ``on_point(point, path, metrics)`` (a test hook) is called after each point's
-    metrics, while its results file still exists. An existing ``out`` raises FileExistsError
-    before any work unless ``overwrite``. Everything is checked (:func:`plan_study`) before the
-    first point runs.
+    metrics, while its results file still exists. ``before_write(ds)`` is called once every
+    point has run, before ``out`` is written (``chirplidar study`` draws its plot there, so that a
+    plot that cannot be written leaves no study file behind): when it returns False ``out`` is
+    not written, and an exception from it propagates with nothing written. An existing ``out``
+    raises FileExistsError before any work unless ``overwrite``; an ``out`` that is a directory,
+    or in a directory that is missing or cannot be written, raises ConfigError before any work
+    (:func:`check_output_file`). Everything is checked (:func:`plan_study`) before the first
+    point runs.
     """
     from ..mission.runner import _check_parallel_args, run_mission
 
@@ -784,16 +805,21 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
         out = Path(out)
         if out.suffix != ".nc":
             raise ConfigError(f"--out {out}: the study file must end in .nc")
+        if out.is_dir():
+            raise ConfigError(f"--out {out}: is a directory; name the study file "
+                              "(e.g. study.nc)")
         if out.exists() and not overwrite:
             raise FileExistsError(f"{out} exists: pass --overwrite to replace it "
                                   "(nothing was run)")
         if not out.parent.is_dir():
             raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+        check_output_file("--out", out, ".nc")
     plan = plan_study(mission_path, vary, overrides=overrides, span_s=span_s, cell_m=cell_m,
                       tier=tier, seed=seed, cache_dir=cache_dir)
     t0 = time.perf_counter()
     metrics = {name: np.full(plan.shape, np.nan) for name in METRICS}
     metrics["shots"] = np.zeros(plan.shape, dtype=np.int64)
+    metrics["detected_shots"] = np.zeros(plan.shape, dtype=np.int64)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -825,9 +851,44 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
         if bar is not None:
             bar.close()
     ds = study_dataset(plan, metrics, elapsed_s=time.perf_counter() - t0)
-    if out is not None:
+    write = True
+    if before_write is not None:
+        write = before_write(ds) is not False
+    if out is not None and write:
         write_study(ds, out, overwrite=overwrite)
     return ds
+
+
+def check_output_file(option: str, path, suffix: str, *, make_parents: bool = False) -> Path:
+    """Check, before any work, that the file ``path`` can be written: ConfigError, one line
+    naming ``option``, when its name does not end in ``suffix``, it is a directory, its folder
+    does not exist (with ``make_parents``: the nearest existing folder above it, where the
+    missing ones would be made, is not a directory) or cannot be written. Writable means
+    ``os.access`` says so and a probe file can be created (and is removed) there: ``os.access``
+    says yes to root everywhere, also in /proc. Returns the path."""
+    path = Path(path)
+    if path.suffix.lower() != suffix:
+        raise ConfigError(f"{option} {path}: the file name must end in {suffix}")
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: is a directory; name a {suffix} file in it")
+    folder = path.parent
+    if make_parents:
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+    if not folder.is_dir():
+        what = "is not a directory" if folder.exists() else "does not exist"
+        raise ConfigError(f"{option} {path}: {folder} {what}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ConfigError(f"{option} {path}: the file exists and cannot be written")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {path}: cannot write in {folder} (permission denied)")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".chirplidar-check-"):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{option} {path}: cannot write in {folder} (creating a file "
+                          f"there fails: {exc.strerror or exc})") from None
+    return path
 
 
 def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = None,
@@ -924,7 +985,7 @@ def study_records(ds: xr.Dataset) -> list[dict]:
             rec[str(ds[d].attrs.get("study_key", d))] = v.item() if hasattr(v, "item") else v
         for n in names:
             v = ds[n].values[index]
-            rec[n] = int(v) if n == "shots" else float(v)
+            rec[n] = int(v) if n in _COUNTS else float(v)
         records.append(rec)
     return records
 
@@ -951,8 +1012,10 @@ def format_study(ds: xr.Dataset) -> str:
     if "fraction_covered" in ds.data_vars:
         cols.append(("covered", "%", "fraction_covered", 100.0, 1))
     cols += [("flight", "s", "flight_time_s", 1.0, 1),
-             ("shots", "", "shots", 1.0, 0),
-             ("threshold", "dB", "detection_threshold_db", 1.0, 1)]
+             ("shots", "", "shots", 1.0, 0)]
+    if "detected_shots" in ds.data_vars:   # study files written before it existed lack it
+        cols.append(("detected", "", "detected_shots", 1.0, 0))
+    cols.append(("threshold", "dB", "detection_threshold_db", 1.0, 1))
     key_w = [max(len(k), 10) for k in keys]
     col_w = [max(len(c[0]), len(c[1]) + 2, 8) for c in cols]
     head1 = "  ".join(k.rjust(w) for k, w in zip(keys, key_w)) + "  " + "  ".join(
@@ -975,6 +1038,6 @@ def format_study(ds: xr.Dataset) -> str:
             row.append((f"{v:.6g}" if isinstance(v, float) else str(v)).rjust(w))
         for (label, _, name, scale, digits), w in zip(cols, col_w):
             v = rec[name]
-            row.append((str(v) if name == "shots" else _fmt(v, scale, digits)).rjust(w))
+            row.append((str(v) if name in _COUNTS else _fmt(v, scale, digits)).rjust(w))
         lines.append("  ".join(row))
     return "\n".join(lines)

@@ -163,6 +163,9 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read mission file ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a mission file (not UTF-8 text; a mission is a TOML "
+                          "file)") from None
     try:
         tree = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

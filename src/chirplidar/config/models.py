@@ -564,11 +564,17 @@ class SurveyRun(_Model):
     chunk_shots: int = Field(20000, ge=1, description="shots per chunk (memory bound and "
                              "resume granularity)")
 
-    @field_validator("epoch_utc")
+    @field_validator("epoch_utc", mode="before")
     @classmethod
     def _epoch(cls, v):
         import datetime as _dt
 
+        if isinstance(v, _dt.datetime):   # --set survey.epoch_utc=2026-08-15T12:00:00Z (TOML)
+            if v.tzinfo is None:
+                raise ValueError(f"give the time zone (a Z for UTC): {v.isoformat()}")
+            v = v.astimezone(_dt.timezone.utc).isoformat().replace("+00:00", "Z")
+        if not isinstance(v, str):
+            raise ValueError(f"expected an ISO 8601 date-time string, got {v!r}")
         try:
             _dt.datetime.fromisoformat(v.replace("Z", "+00:00"))
         except ValueError:

@@ -1098,5 +1098,8 @@ def load_scene(path, *, cache_dir=None, use_cache: bool = True, progress: bool =
         text = p.read_text()
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read scene file ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a scene file (not UTF-8 text; a scene is a TOML "
+                          "file)") from None
     return scene_from_text(text, base_dir=p.parent, path=p, cache_dir=cache_dir,
                            use_cache=use_cache, progress=progress, overrides=overrides)

@@ -58,6 +58,20 @@ def parse_bounds(text: str) -> tuple[float, float, float, float]:
     return check_bounds_m(values, BOUNDS_OPTION)
 
 
+def _read_result(path):
+    """A results file of ``chirplidar run`` read into memory; ValueError (one line naming the
+    file) for anything else."""
+    try:
+        ds = read_netcdf(path)
+    except OSError as exc:
+        raise ValueError(f"{path}: not a readable NetCDF results file ({exc})") from None
+    missing = [v for v in ("x", "y", "detected") if v not in ds.variables]
+    if missing or ds.attrs.get("featureType") != "trajectory":
+        raise ValueError(f"{path}: not a chirplidar results file (a CF trajectory with x, y, "
+                         f"detected; missing {', '.join(missing) or 'featureType'})")
+    return ds
+
+
 def _check_var(ds, var: str, path) -> None:
     from ..viz.scene3d import showable_variables
 
@@ -103,7 +117,7 @@ def view_result(path, *, var: str = "range_error", png=None, bounds=None,
     """
     from ..viz.scene3d import check_bounds_m, render_track
 
-    ds = read_netcdf(path)
+    ds = _read_result(path)
     _check_var(ds, var, path)
     if bounds is not None:
         bounds = check_bounds_m(bounds, BOUNDS_OPTION)
@@ -183,7 +197,7 @@ def view_plan(path, *, var: str = "range_error", png, bounds=None) -> Path:
     from ..viz.planmap import plot_plan_map
     from ..viz.scene3d import check_bounds_m
 
-    ds = read_netcdf(path)
+    ds = _read_result(path)
     _check_var(ds, var, path)
     x, y = _footprints(ds)
     if bounds is not None:
@@ -204,5 +218,6 @@ def view_plan(path, *, var: str = "range_error", png, bounds=None) -> Path:
     return plot_plan_map(
         png, terrain=terrain, tracks=[(x[b], y[b]) for b in range(x.shape[0])],
         shots=(x.ravel(), y.ravel(), values.ravel()), shot_var=shot_var,
-        region=_survey_region(ds), summary=_plan_summary(ds, inside, bounds is not None),
+        region=_survey_region(ds), region_label="survey polygon",
+        summary=_plan_summary(ds, inside, bounds is not None),
         title=title, bounds=bounds, epsg=_epsg(ds))

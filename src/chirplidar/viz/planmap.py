@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import _checks
 from ._mpl import plt, save
-from .scene3d import _DETECTED_COLORS, _FLAG_COLORS, _percentile_clim, check_bounds_m
+from .scene3d import _DETECTED_COLORS, _FLAG_COLORS, check_bounds_m, colour_range
 
 __all__ = ["hillshade", "plan_map_figure", "plot_plan_map", "scale_bar_length_m",
            "true_north_bearing_deg"]
@@ -56,6 +56,13 @@ RIGHT_PAD_IN = 0.15
 TITLE_LINE_IN = 0.24
 LEGEND_ROW_IN = 0.22
 LEGEND_COLUMNS = 3
+# Summary box below the map (never over the data): its lines in columns, read down each column
+SUMMARY_FONT_PT = 8.5
+SUMMARY_ROW_IN = 0.165         # one 8.5-pt line
+SUMMARY_COL_GAP_IN = 0.35
+SUMMARY_PAD_IN = 0.09          # inside the frame, each side
+SUMMARY_GAP_IN = 0.1           # between the box and the legend above it
+SUMMARY_MAX_COLUMNS = 4
 CBAR_GAP_IN, CBAR_WIDTH_IN, CBAR_TICKS_IN, CBAR_LABEL_LINE_IN = 0.2, 0.18, 0.62, 0.22
 
 TRACK_COLOR = "#1a1a1a"
@@ -540,8 +547,9 @@ def _grid_variables(grid) -> list[str]:
 
 def _continuous_style(values: np.ndarray, integer: bool, units=None):
     """(cmap, norm, extend, ticks) for continuous values: 1st-99th percentile range (min-max
-    below 100 values), a diverging map symmetric about 0 when values take both signs (errors),
-    except for decibels (0 dB is no special value), whole-number bins for small counts."""
+    below 100 values or when the percentiles coincide, :func:`~chirplidar.viz.scene3d.colour_range`), a diverging map
+    symmetric about 0 when values take both signs (errors), except for decibels (0 dB is no
+    special value), whole-number bins for small counts."""
     from matplotlib.colors import BoundaryNorm, Normalize
     from matplotlib.ticker import MaxNLocator
 
@@ -556,8 +564,9 @@ def _continuous_style(values: np.ndarray, integer: bool, units=None):
         cmap = plt.get_cmap("viridis", bounds.size - 1)
         return cmap, BoundaryNorm(bounds, cmap.N), "neither", np.arange(lo, hi + 1)
     symmetric = str(units or "").strip().lower() != "db"
-    lo, hi = _percentile_clim(finite, symmetric)
-    cmap = plt.get_cmap("RdBu_r" if symmetric and lo < 0 < hi else "viridis")
+    lo, hi = colour_range(finite, symmetric)
+    diverging = symmetric and lo < 0 < hi and finite.min() < 0 < finite.max()
+    cmap = plt.get_cmap("RdBu_r" if diverging else "viridis")
     below, above = bool(finite.min() < lo), bool(finite.max() > hi)
     extend = {(True, True): "both", (True, False): "min", (False, True): "max"}.get(
         (below, above), "neither")
@@ -817,16 +826,45 @@ def _wrap_label(label: str, length_in: float) -> str:
     return textwrap.fill(label, max(12, int(length_in / 0.085)))
 
 
+def _summary_columns(lines: list[str], width_in: float) -> list[list[str]]:
+    """The summary's lines in the most columns (up to SUMMARY_MAX_COLUMNS) whose box fits in
+    ``width_in``, filled down each column in order; one column when nothing wider fits."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.textpath import TextToPath
+
+    measure = TextToPath()
+    prop = FontProperties(size=SUMMARY_FONT_PT)
+    widths = [measure.get_text_width_height_descent(line, prop, ismath=False)[0] / 72.0
+              for line in lines]
+    for ncols in range(min(SUMMARY_MAX_COLUMNS, len(lines)), 1, -1):
+        rows = math.ceil(len(lines) / ncols)
+        if math.ceil(len(lines) / rows) < ncols:   # e.g. 5 lines in 4 columns: 3 are used
+            continue
+        cols = [slice(c * rows, (c + 1) * rows) for c in range(ncols)]
+        total = (sum(max(widths[c]) for c in cols) + (ncols - 1) * SUMMARY_COL_GAP_IN
+                 + 2 * SUMMARY_PAD_IN)
+        if total * 1.05 <= width_in:     # 5 % for the renderer's hinting
+            return [lines[c] for c in cols]
+    return [lines]
+
+
+def _summary_height_in(columns: list[list[str]]) -> float:
+    return max(len(c) for c in columns) * SUMMARY_ROW_IN + 2 * SUMMARY_PAD_IN
+
+
 def _layout(view, figsize_in, n_title_lines: int, cbar_label_lines: list[int],
-            n_legend_rows: int):
+            n_legend_rows: int, summary_h_in: float = 0.0):
     """Sizes in inches: (figure (w, h), axes rect, colour-bar rects), rects (left, bottom, width,
     height) from the figure's lower-left corner. The axes keep the view's aspect (equal scales)
     and fill FIG_WIDTH_IN less the margins, at most MAX_AXES_HEIGHT_IN tall (then the figure is
-    narrower); with ``figsize_in`` the axes are the largest that fit, centred."""
+    narrower); with ``figsize_in`` the axes are the largest that fit, centred. Below the axes:
+    the x label, the legend rows, and a summary box ``summary_h_in`` high."""
     xmin, ymin, xmax, ymax = view
     aspect = (ymax - ymin) / (xmax - xmin)
     top = TITLE_LINE_IN * n_title_lines + 0.2
     bottom = 0.62 + (LEGEND_ROW_IN * n_legend_rows + 0.12 if n_legend_rows else 0.0)
+    if summary_h_in > 0:
+        bottom += summary_h_in + SUMMARY_GAP_IN
     cbars_w = sum(CBAR_GAP_IN + CBAR_WIDTH_IN + CBAR_TICKS_IN + CBAR_LABEL_LINE_IN * n
                   for n in cbar_label_lines)
     right = cbars_w + RIGHT_PAD_IN
@@ -845,7 +883,7 @@ def _layout(view, figsize_in, n_title_lines: int, cbar_label_lines: list[int],
         avail_w, avail_h = fig_w - LEFT_IN - right, fig_h - bottom - top
         if avail_w < 1.0 or avail_h < 1.0:
             raise ValueError(f"figsize_in: {fig_w:g} x {fig_h:g} in leaves no room for the map "
-                             "next to its title, labels, colour bars and legend")
+                             "next to its title, labels, colour bars, legend and summary")
         axes_w, axes_h = min(avail_w, avail_h / aspect), min(avail_h, avail_w * aspect)
         left = LEFT_IN + 0.5 * (avail_w - axes_w)
     ax_bottom = bottom + 0.5 * (fig_h - bottom - top - axes_h)
@@ -859,14 +897,14 @@ def _layout(view, figsize_in, n_title_lines: int, cbar_label_lines: list[int],
 # ------------------------------------------------------------------------------------ public
 def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=None,
                     shot_var=None, region=None, crossovers=None, summary=None, title=None,
-                    bounds=None, epsg=None, figsize_in=None):
+                    bounds=None, epsg=None, figsize_in=None, region_label="region"):
     """The plan-view map as a matplotlib Figure (arguments as :func:`plot_plan_map`).
 
     The caller owns the figure (``matplotlib.pyplot.close(fig)`` when done).
     """
     import matplotlib.patheffects as pe
     from matplotlib.lines import Line2D
-    from matplotlib.offsetbox import AnchoredText
+    from matplotlib.offsetbox import AnchoredOffsetbox, HPacker, TextArea, VPacker
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
     terrain = _check_terrain(terrain)
@@ -876,6 +914,8 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
     polygons = _check_region(region)
     cross = _check_crossovers(crossovers)
     summary_text = _summary_text(summary)
+    if not isinstance(region_label, str) or not region_label.strip():
+        raise ValueError(f"region_label: expected a non-empty string, got {region_label!r}")
     if var is not None and grid is None:
         raise ValueError(f"var: {var!r} names a grid variable but no grid was given")
     grid_edges = None
@@ -943,7 +983,7 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
                     ax.plot(rx, ry, color=REGION_COLOR, lw=1.6, ls=(0, (6, 3)), zorder=6,
                             path_effects=halo)
             legend.append((4, Line2D([], [], color=REGION_COLOR, lw=1.6, ls=(0, (6, 3)),
-                                     label="survey region")))
+                                     label=region_label.strip())))
         if cross is not None and cross[0].size:
             ax.scatter(cross[0], cross[1], marker="x", s=30, c=CROSSOVER_COLOR, linewidths=1.2,
                        zorder=7, path_effects=halo)
@@ -956,12 +996,24 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
 
         # layout: axes at the view's aspect, colour bars of the axes' height on the right
         n_rows = math.ceil(len(legend) / LEGEND_COLUMNS)
-        probe = _layout(view, figsize_in, n_title_lines, [1] * len(colorbars), n_rows)
+        # the summary box goes below the map and its legend, where it hides nothing: its
+        # lines in as many columns as the figure's width holds
+        summary_cols = (_summary_columns(summary_text.splitlines(),
+                                         (figsize_in or (FIG_WIDTH_IN,))[0] - 0.3)
+                        if summary_text else [])
+        summary_h = _summary_height_in(summary_cols) if summary_cols else 0.0
+        probe = _layout(view, figsize_in, n_title_lines, [1] * len(colorbars), n_rows,
+                        summary_h)
+        if summary_cols and figsize_in is None and probe[0][0] < FIG_WIDTH_IN:
+            # a tall view: the figure is narrower than FIG_WIDTH_IN; columns that fit it
+            summary_cols = _summary_columns(summary_text.splitlines(), probe[0][0] - 0.3)
+            summary_h = _summary_height_in(summary_cols)
         scales = [_display_units(c) for c in colorbars]
         labels = [_wrap_label(_label(c["long_name"], units), probe[1][3])
                   for c, (units, _) in zip(colorbars, scales)]
         (fig_w, fig_h), ax_rect, cbar_rects = _layout(
-            view, figsize_in, n_title_lines, [lab.count("\n") + 1 for lab in labels], n_rows)
+            view, figsize_in, n_title_lines, [lab.count("\n") + 1 for lab in labels], n_rows,
+            summary_h)
         fig.set_size_inches(fig_w, fig_h)
 
         def frac(rect):
@@ -997,21 +1049,33 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
         cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
         bearing = true_north_bearing_deg(cx, cy, code) if code is not None else math.nan
         _draw_north_arrow(ax, 0.0 if math.isnan(bearing) else bearing, math.isnan(bearing))
-        if summary_text:
-            box = AnchoredText(summary_text, loc="upper left", prop={"size": 8.5}, frameon=True,
-                               pad=0.4, borderpad=0.6)
-            box.patch.set_boxstyle("round,pad=0.2")
-            box.patch.set_alpha(0.8)
+        ax_centre = (ax_rect[0] + 0.5 * ax_rect[2]) / fig_w
+        legend_y_in = 0.06
+        if summary_cols:
+            # centred under the map, at the bottom of the figure (below the legend)
+            text = {"fontsize": SUMMARY_FONT_PT, "parse_math": False}
+            sep_pt = SUMMARY_ROW_IN * 72.0 - 1.2 * SUMMARY_FONT_PT
+            columns = [VPacker(children=[TextArea(line, textprops=text) for line in col],
+                               align="left", pad=0, sep=max(sep_pt, 0.0)) for col in summary_cols]
+            packed = HPacker(children=columns, align="top", pad=0,
+                             sep=SUMMARY_COL_GAP_IN * 72.0)
+            box = AnchoredOffsetbox(loc="lower center", child=packed,
+                                    pad=SUMMARY_PAD_IN * 72.0 / SUMMARY_FONT_PT, borderpad=0.0,
+                                    prop={"size": SUMMARY_FONT_PT}, frameon=True,
+                                    bbox_to_anchor=(ax_centre, 0.06 / fig_h),
+                                    bbox_transform=fig.transFigure)
+            box.patch.set_boxstyle("round,pad=0,rounding_size=0.4")
+            box.patch.set_alpha(0.9)
             box.patch.set_edgecolor("#999999")
-            box.set_zorder(10)
             box.set_gid("summary")
-            ax.add_artist(box)
+            fig.add_artist(box)
+            legend_y_in += summary_h + SUMMARY_GAP_IN
         if legend:
             ncols = min(LEGEND_COLUMNS, len(legend))
             # matplotlib fills legend columns first: reorder so that it reads row by row
             legend = [h for c in range(ncols) for h in legend[c::ncols]]
             fig.legend(handles=legend, loc="lower center", ncols=ncols,
-                       bbox_to_anchor=((ax_rect[0] + 0.5 * ax_rect[2]) / fig_w, 0.06 / fig_h),
+                       bbox_to_anchor=(ax_centre, legend_y_in / fig_h),
                        fontsize=8.5, frameon=False, borderaxespad=0.0, handlelength=2.2,
                        columnspacing=1.6)
     except BaseException:   # a half-drawn figure must not stay registered in pyplot
@@ -1022,7 +1086,7 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
 
 def plot_plan_map(png, *, terrain=None, tracks=None, grid=None, var=None, shots=None,
                   shot_var=None, region=None, crossovers=None, summary=None, title=None,
-                  bounds=None, epsg=None, figsize_in=None) -> Path:
+                  bounds=None, epsg=None, figsize_in=None, region_label="region") -> Path:
     """Write a plan-view map of a survey to ``png`` and return its path.
 
     Parameters (all coordinates in projected metres of one CRS; every layer is optional, at least
@@ -1048,10 +1112,12 @@ def plot_plan_map(png, *, terrain=None, tracks=None, grid=None, var=None, shots=
         ``"height_precision_measured"``, ``"median_snr_db"``. Cells with ``in_region == 0`` and
         NaN cells are transparent. Continuous variables get a colour bar labelled
         ``long_name (units)`` (no brackets for dimensionless "1"), 1st-99th percentile range
-        (diverging, symmetric about 0, when values take both signs), whole-number bins for
-        integer counts spanning <= 12 values. Categorical variables (CF ``flag_values`` /
-        ``flag_meanings``, or a 0/1 one-byte integer such as ``covered``) get legend entries
-        instead of a colour bar.
+        (the min-max when those coincide, as for a count grid of mostly empty cells; +-5 %
+        around the value of an all-equal field, 0..1 for zeros; diverging, symmetric about 0,
+        only when values take both signs: never for counts or other non-negative values),
+        whole-number bins for integer counts spanning <= 12 values. Categorical variables (CF
+        ``flag_values`` / ``flag_meanings``, or a 0/1 one-byte integer such as ``covered``) get
+        legend entries instead of a colour bar.
     shots, shot_var : (x, y, values) 1-D arrays; str or mapping
         Footprints coloured by value (at most 200,000 drawn: every k-th beyond, said in the
         legend; only those inside the view). ``shot_var``: the values' name, or a mapping of CF
@@ -1060,10 +1126,15 @@ def plot_plan_map(png, *, terrain=None, tracks=None, grid=None, var=None, shots=
         grey dots (counted in the legend).
     region : shapely Polygon or MultiPolygon
         Survey region, a dashed magenta outline.
+    region_label : str
+        The region's legend entry (default "region"), e.g. "survey polygon", "scene extent",
+        "--bounds box", "GeoJSON polygon": what the outline is.
     crossovers : xarray.Dataset
         Variables ``x``, ``y`` (m) along dim ``crossover``: small black crosses.
     summary : dict
-        Numbers shown in a box in the upper-left corner, one line each in the dict's order: keys
+        Numbers shown in a box below the map and its legend (where it hides nothing; in as many
+        columns, up to 4, read down each, as the figure's width holds), one line each in the
+        dict's order: keys
         ``fraction_*`` / ``*_fraction`` as %, ``*_m`` as lengths (km / m / cm / mm), ``*_db`` in
         dB, ``*_s`` in s, whole numbers with thousands separators, strings as they are; None,
         NaN and other values (dicts, lists) are skipped. Pass the few numbers worth a glance.
@@ -1085,11 +1156,12 @@ def plot_plan_map(png, *, terrain=None, tracks=None, grid=None, var=None, shots=
     Axes are in km of the projection (tick labels = metres / 1000), equal aspect, with a scale
     bar of a round length (:func:`scale_bar_length_m`) in the lower-left corner and the north
     arrow in the upper-right one. Legend entries (tracks, region, crossovers, categories, no-value
-    shots, contours) go below the map. Bad input raises ValueError naming the argument.
+    shots, contours) go below the map, the summary box below them. Bad input raises ValueError
+    naming the argument.
     """
     path = _checks.png_path("png", png)
     fig = plan_map_figure(terrain=terrain, tracks=tracks, grid=grid, var=var, shots=shots,
                           shot_var=shot_var, region=region, crossovers=crossovers,
                           summary=summary, title=title, bounds=bounds, epsg=epsg,
-                          figsize_in=figsize_in)
+                          figsize_in=figsize_in, region_label=region_label)
     return save(fig, path)

@@ -149,20 +149,29 @@ def _check_window_size(window_size) -> tuple[int, int]:
     return int(w), int(h)
 
 
-def _percentile_clim(values: np.ndarray, symmetric: bool = True) -> tuple[float, float]:
-    """Colour range: 1st-99th percentile for >= 100 values (outliers saturate), else min-max;
-    symmetric about 0 when the values take both signs (errors) unless ``symmetric`` is False
-    (decibels: 0 dB is no special value)."""
-    if values.size >= 100:
-        lo, hi = (float(v) for v in np.percentile(values, [1.0, 99.0]))
-    else:
-        lo, hi = float(values.min()), float(values.max())
-    if symmetric and lo < 0 < hi:
+def colour_range(finite: np.ndarray, symmetric: bool = True) -> tuple[float, float]:
+    """(lo, hi) of a colour scale for finite values: the 1st-99th percentile for >= 100 values
+    (outliers saturate), else the min-max. A degenerate percentile range falls back to the
+    min-max (a count grid of mostly empty cells has percentiles 0..0: its counts must still be
+    told apart); an all-equal field gets +-5 % around its value (0..1 for zeros), a range that
+    holds the value. With ``symmetric`` the range is widened symmetric about 0 only when it
+    straddles 0, i.e. when the values take both signs: non-negative values (counts, gaps,
+    precisions) never get a range below 0, so never a diverging map (decibels pass
+    ``symmetric=False``: 0 dB is no special value). Shared by the 3-D and plan views."""
+    vmin, vmax = float(finite.min()), float(finite.max())
+    lo, hi = vmin, vmax
+    if finite.size >= 100:
+        p_lo, p_hi = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
+        if p_hi > p_lo:
+            lo, hi = p_lo, p_hi
+    if hi <= lo:
+        if lo == 0.0:
+            return 0.0, 1.0
+        pad = 0.05 * abs(lo)
+        return lo - pad, lo + pad
+    if symmetric and lo < 0.0 < hi:
         m = max(-lo, hi)
         lo, hi = -m, m
-    if hi <= lo:  # one value: open a range around it so the colormap is defined
-        pad = 0.5 * abs(lo) if lo != 0 else 1.0
-        lo, hi = lo - pad, hi + pad
     return lo, hi
 
 
@@ -455,7 +464,7 @@ class _Scene:
             self.fp_scalars = self.fp_values
             finite = self.fp_values[np.isfinite(self.fp_values)]
             symmetric = not _is_decibel(dvar)
-            self.clim = _percentile_clim(finite, symmetric) if finite.size else None
+            self.clim = colour_range(finite, symmetric) if finite.size else None
             # Diverging map with a pale-yellow centre: stays distinct from the ice-blue terrain
             # and the grey of no-value shots (coolwarm's grey centre does not).
             self.cmap = "RdYlBu_r" if symmetric and self.clim is not None \

@@ -4,7 +4,14 @@ keys, to a PNG.
 * One varied key, or two where one of them has few values or is not numeric: four panels
   against the (numeric) key -- detection probability (and the covered fraction, dashed, when the
   study has one), median SNR with its 10-90 % band and the detection threshold (dashed), median
-  received power, range RMS -- with one line per value of the other key.
+  received power, range RMS (and the height precision, dashed) of the detected shots -- with one
+  line per value of the other key. A range RMS or height precision that rests on fewer than
+  :data:`MIN_DETECTED_SHOTS` detected shots (the study's ``detected_shots``) is left out of its
+  line and drawn as an open marker with its count beside it ("n=1"), said in the legend: one
+  detected shot makes no precision, and a line through it would show a dip that is not there.
+  Every panel spans at least :data:`MIN_SPAN` (1 dB, 1 cm, 5 %) centred on its data, so that
+  a quantity that does not change (the received power against the line spacing) shows flat,
+  not as its noise magnified into a trend.
 * Two numeric keys of three or more values each: heat maps of the median SNR and the detection
   probability over the grid, with the contour where the median SNR equals the detection
   threshold.
@@ -12,6 +19,8 @@ keys, to a PNG.
 Axis labels carry the key's unit, from its SI suffix (``_m`` m, ``_deg`` deg, ``_w`` W, ``_mps``
 m/s, ``_db`` dB, ...). -inf values (zero signal) and NaN (no value) are left out: gaps in a
 line, blank cells in a map.
+
+:func:`study_figure` returns the figure (e.g. for a notebook), :func:`plot_study` writes it.
 """
 
 from __future__ import annotations
@@ -26,6 +35,10 @@ from ._mpl import finite_or_nan, plt, save
 MAX_SERIES = 8
 #: Heat maps write each cell's value up to this many cells per axis.
 MAX_ANNOTATED = 10
+#: Range RMS and height precision from fewer detected shots are marked, not joined in a line.
+MIN_DETECTED_SHOTS = 10
+#: Smallest y span of a panel, by its unit: a flat quantity stays flat.
+MIN_SPAN = {"dB": 1.0, "cm": 1.0, "%": 5.0}
 
 
 def _units_label(ds, dim: str) -> str:
@@ -67,15 +80,33 @@ def _title(ds) -> str:
     return f"Mission study: {mission} ({', '.join(bits)})"
 
 
-def plot_study(ds, path, *, title: str | None = None) -> Path:
-    """Draw the study dataset ``ds`` (:func:`chirplidar.analysis.study.run_study`) to the PNG
-    ``path`` (module docstring) and return the path."""
+def study_figure(ds, *, title: str | None = None):
+    """The plot of the study dataset ``ds`` (:func:`chirplidar.analysis.study.run_study`) as a
+    matplotlib Figure (module docstring); the caller closes it."""
     dims = list(ds["detection_probability"].dims)
     if not 1 <= len(dims) <= 2:
         raise ValueError(f"a study has one or two varied keys, got dims {dims}")
     if len(dims) == 2 and all(_numeric(ds, d) and ds.sizes[d] >= 3 for d in dims):
-        return _heat_maps(ds, path, dims, title or _title(ds))
-    return _line_panels(ds, path, dims, title or _title(ds))
+        return _heat_maps(ds, dims, title or _title(ds))
+    return _line_panels(ds, dims, title or _title(ds))
+
+
+def plot_study(ds, path, *, title: str | None = None) -> Path:
+    """Draw the study dataset ``ds`` (:func:`chirplidar.analysis.study.run_study`) to the PNG
+    ``path`` (module docstring) and return the path."""
+    fig = study_figure(ds, title=title)
+    try:
+        return save(fig, path)
+    finally:   # also when saving fails: no figure left registered in pyplot
+        plt.close(fig)
+
+
+def _min_span(ax, span: float) -> None:
+    """Widen the y axis of ``ax`` to at least ``span``, centred on its autoscaled limits."""
+    lo, hi = ax.get_ylim()
+    if ax.get_yscale() == "linear" and np.isfinite(lo) and np.isfinite(hi) and hi - lo < span:
+        mid = 0.5 * (lo + hi)
+        ax.set_ylim(mid - 0.5 * span, mid + 0.5 * span)
 
 
 def _value_ticks(axis, values) -> None:
@@ -92,7 +123,7 @@ def _value_ticks(axis, values) -> None:
 
 
 # ----------------------------------------------------------------------------------- lines
-def _line_panels(ds, path, dims, title) -> Path:
+def _line_panels(ds, dims, title):
     if len(dims) == 1:
         x_dim, s_dim = dims[0], None
     else:
@@ -125,6 +156,9 @@ def _line_panels(ds, path, dims, title) -> Path:
     thr_all = np.asarray(ds["detection_threshold_db"].values, float)
     constant_thr = bool(np.all(thr_all == thr_all.ravel()[0]))
     covered = "fraction_covered" in ds.data_vars
+    has_counts = "detected_shots" in ds.data_vars     # study files before it lack it
+    few_any = False
+    reliable_rng = []
     for k, colour in zip(series, colours):
         label = (None if s_dim is None or len(series) > MAX_SERIES
                  else _fmt_value(ds[s_dim].values[k]))
@@ -144,7 +178,28 @@ def _line_panels(ds, path, dims, title) -> Path:
             ax_snr.plot(xs, values("detection_threshold_db", k), color=colour, ls="--",
                         lw=1.0)
         ax_pow.plot(xs, values("median_received_power_dbm", k), label=label, **kw)
-        ax_rng.plot(xs, 100.0 * values("range_rms_m", k), label=label, **kw)
+        rng_k = 100.0 * values("range_rms_m", k)
+        hp_k = 100.0 * values("height_precision_m", k)
+        few = np.zeros(xs.shape, bool)
+        if has_counts:
+            n_det = values("detected_shots", k)
+            few = n_det < MIN_DETECTED_SHOTS
+        ax_rng.plot(xs, np.where(few, np.nan, rng_k), label=label, **kw)
+        ax_rng.plot(xs, np.where(few, np.nan, hp_k), color=colour, ls="--", marker="s", ms=3,
+                    lw=1.2)
+        reliable_rng.append(np.where(few, np.nan, rng_k))
+        for y, marker in ((rng_k, "o"), (hp_k, "s")):
+            weak = few & np.isfinite(y)
+            if np.any(weak):
+                few_any = True
+                ax_rng.plot(xs[weak], y[weak], ls="none", marker=marker, ms=6, mfc="none",
+                            mec=colour, mew=1.2)
+        for i in np.flatnonzero(few & (np.isfinite(rng_k) | np.isfinite(hp_k))):
+            y = rng_k[i] if np.isfinite(rng_k[i]) else hp_k[i]
+            right = xs[i] > np.median(xs)      # the count on the inner side: not clipped
+            ax_rng.annotate(f"n={int(n_det[i])}", (xs[i], y), xytext=(-5 if right else 5, 4),
+                            textcoords="offset points", ha="right" if right else "left",
+                            fontsize=7, color=colour)
     if constant_thr:
         ax_snr.axhline(thr_all.ravel()[0], color="0.35", ls="--", lw=1.1,
                        label=f"threshold {thr_all.ravel()[0]:g} dB")
@@ -155,12 +210,23 @@ def _line_panels(ds, path, dims, title) -> Path:
     ax_det.set_ylim(-3.0, 103.0)
     ax_snr.set_ylabel("median SNR (dB), 10-90 % band")
     ax_pow.set_ylabel("median received power (dBm)")
-    ax_rng.set_ylabel("range error RMS, detected (cm)")
-    rng = np.asarray(ds["range_rms_m"].values, float)
+    ax_rng.set_ylabel("range RMS / height precision, detected (cm)")
+    rng = np.concatenate(reliable_rng)
     rng = rng[np.isfinite(rng) & (rng > 0)]
     if rng.size and rng.max() / rng.min() > 20.0:
         ax_rng.set_yscale("log")
         ax_rng.yaxis.set_major_formatter(plt.FuncFormatter(lambda t, _: f"{t:g}"))
+    from matplotlib.lines import Line2D
+
+    rng_styles = [Line2D([], [], color="0.2", marker="o", ms=4, lw=1.6,
+                         label="range error RMS"),
+                  Line2D([], [], color="0.2", marker="s", ms=3, lw=1.2, ls="--",
+                         label="height precision (std)")]
+    if few_any:
+        rng_styles.append(Line2D([], [], ls="none", marker="o", ms=6, mfc="none", mec="0.2",
+                                 mew=1.2, label=f"open: < {MIN_DETECTED_SHOTS} detected "
+                                 "shots (n=count), not joined"))
+    ax_rng.legend(handles=rng_styles, fontsize=8, loc="best")
     xlabel = _units_label(ds, x_dim)
     for ax in axes.ravel():
         ax.grid(True, alpha=0.3)
@@ -173,8 +239,6 @@ def _line_panels(ds, path, dims, title) -> Path:
             ax.set_xticks(xs)
             ax.set_xticklabels([_fmt_value(v) for v in ds[x_dim].values])
     if covered:
-        from matplotlib.lines import Line2D
-
         cell = ds["fraction_covered"].attrs.get("cell_size_m")
         styles = [Line2D([], [], color="0.2", marker="o", ms=4, lw=1.6,
                          label="detection probability"),
@@ -194,7 +258,11 @@ def _line_panels(ds, path, dims, title) -> Path:
                     else None)
     ax_snr.legend(title=legend_title, fontsize=8, title_fontsize=8, loc="best")
     fig.suptitle(title, fontsize=11)
-    return save(fig, path)
+    _min_span(ax_snr, MIN_SPAN["dB"])
+    _min_span(ax_pow, MIN_SPAN["dB"])
+    _min_span(ax_rng, MIN_SPAN["cm"])
+    _min_span(ax_det, MIN_SPAN["%"])   # fixed at -3..103 %: already wider
+    return fig
 
 
 # ------------------------------------------------------------------------------- heat maps
@@ -206,7 +274,7 @@ def _edges(v: np.ndarray, log: bool) -> np.ndarray:
     return np.exp(e) if log else e
 
 
-def _heat_maps(ds, path, dims, title) -> Path:
+def _heat_maps(ds, dims, title):
     x_dim, y_dim = dims
     x = np.asarray(ds[x_dim].values, float)
     y = np.asarray(ds[y_dim].values, float)
@@ -264,4 +332,4 @@ def _heat_maps(ds, path, dims, title) -> Path:
         ax.set_ylabel(_units_label(ds, y_dim))
         ax.set_title(label.split(" (")[0], fontsize=10)
     fig.suptitle(title, fontsize=11)
-    return save(fig, path)
+    return fig
