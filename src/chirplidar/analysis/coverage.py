@@ -26,7 +26,7 @@ Definitions
   predicts); ``height_precision_measured`` and ``height_precision_predicted`` are these divided
   by sqrt(N), the precision of the cell's mean height from N detected shots.
 * ``median_snr_db``: median of ``snr_db`` over the cell's shots (detected or not), from a
-  histogram per cell over ``SNR_RANGE_DB`` (0.1 dB bins up to 2^25 / 1202 cells, coarser for
+  histogram per cell over ``SNR_RANGE_DB`` (0.1 dB bins up to 2^24 / 1202 cells, coarser for
   more; the width used is in the variable's ``comment``), interpolated linearly within the
   median's bin (the grouped median: exact to the bin width, closer where the SNRs spread over
   several bins); -inf where the median lies below the range (or the power is zero).
@@ -89,7 +89,7 @@ EDGE_BAND = 0.01               # footprints closer than C / 100 to a cell edge a
 EDGE_WARNING = 0.25            # ... which ~4 % of scattered ones are; above this, a warning
 SNR_RANGE_DB = (-30.0, 90.0)   # per-cell SNR histograms: this range, plus under/overflow bins
 SNR_BIN_CHOICES_DB = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)   # the finest whose histograms fit:
-SNR_HISTOGRAM_ENTRIES = 1 << 25  # cells x bins at most (128 MB of counts)
+SNR_HISTOGRAM_ENTRIES = 1 << 24  # cells x bins at most (64 MB of counts)
 GAP_PIXELS_PER_CELL = 20       # detection representatives: pixels of cell_m / 20
 GAP_TOLERANCE_PER_CELL = 20    # largest gap: branch and bound to within C / 20
 PLATFORM_STRIDE = 8            # flight length: chords over 8 shots (a turn of radius r at chord
@@ -106,6 +106,7 @@ SUMMARY_KEYS = ("cells_in_region", "cells_covered", "fraction_covered", "largest
 
 _READ = ("x", "y", "detected", "snr_db", "h_li", "h_li_true", "h_li_sigma", "delta_time",
          "track", "platform_x", "platform_y")
+_BLOCK_VARIABLES = tuple(v for v in _READ if v != "delta_time")   # its ends are read alone
 
 
 class CoverageError(ValueError):
@@ -214,13 +215,22 @@ def _open(path, index: int) -> _File:
         raise
 
 
-def _blocks(f: _File):
-    """(obs start, dict name -> (n_beams, m) array) over the file, HDF5-chunk aligned."""
+def _blocks(f: _File, names):
+    """(obs start, dict name -> (n_beams, m) array) over the file, HDF5-chunk aligned, for the
+    variables ``names`` the file has. The arrays are buffers reused from block to block (fresh
+    ones would cost their page faults again: 25 % of the reading): copy what must outlive one."""
     per = max(1, BLOCK_SHOTS // max(f.n_beams, 1))
     step = max(f.obs_chunk, (per // f.obs_chunk) * f.obs_chunk)
+    names = [n for n in names if n in f.has]
+    with NETCDF_LOCK:
+        dsets = {n: f.h5[n] for n in names}
+        bufs = {n: np.empty((f.n_beams, min(step, f.n_obs)), dsets[n].dtype) for n in names}
     for o0 in range(0, f.n_obs, step):
-        sl = (slice(None), slice(o0, min(f.n_obs, o0 + step)))
-        yield o0, {name: f.read(name, sl) for name in f.has}
+        m = min(f.n_obs, o0 + step) - o0
+        with NETCDF_LOCK:
+            for n in names:
+                dsets[n].read_direct(bufs[n], np.s_[:, o0:o0 + m], np.s_[:, :m])
+        yield o0, {n: b[:, :m] for n, b in bufs.items()}
 
 
 # ----------------------------------------------------------------------------------- region
@@ -326,37 +336,37 @@ def _geojson_region(path: Path, epsg: int):
 
 
 # ----------------------------------------------------------------------------------- accumulators
-class _SparseCounts:
-    """Counts of int64 keys, merged lazily: memory grows with the distinct keys, not the adds."""
+class _KeySet:
+    """A set of int64 keys, added block by block: each block's keys not yet in the sorted
+    set wait in a list, merged into it once they reach a quarter of its size (or 2^20), so
+    memory stays near the number of distinct keys however often they recur."""
 
     def __init__(self):
-        self._parts: list[tuple[np.ndarray, np.ndarray]] = []
-        self._size = 0
-        self._merged_size = 0
+        self._keys = np.zeros(0, np.int64)     # sorted, distinct
+        self._new: list[np.ndarray] = []
+        self._n_new = 0
 
-    def add(self, keys: np.ndarray, counts: np.ndarray | None = None) -> None:
+    def add(self, keys: np.ndarray) -> None:
+        """Add distinct sorted ``keys`` (``np.unique``'s output)."""
         if keys.size == 0:
             return
-        if counts is None:
-            keys, counts = np.unique(keys, return_counts=True)
-        self._parts.append((keys, counts.astype(np.int64)))
-        self._size += keys.size
-        if self._size > 2 * self._merged_size + (1 << 20):
-            self._merge()
+        if self._keys.size:
+            at = np.minimum(np.searchsorted(self._keys, keys), self._keys.size - 1)
+            keys = keys[self._keys[at] != keys]
+        if keys.size:
+            self._new.append(keys)
+            self._n_new += keys.size
+            if self._n_new > max(1 << 20, self._keys.size // 4):
+                self._merge()
 
     def _merge(self) -> None:
-        if len(self._parts) > 1:
-            k = np.concatenate([p[0] for p in self._parts])
-            c = np.concatenate([p[1] for p in self._parts])
-            u, inv = np.unique(k, return_inverse=True)
-            self._parts = [(u, np.bincount(inv, weights=c, minlength=u.size).astype(np.int64))]
-        self._size = self._merged_size = self._parts[0][0].size if self._parts else 0
+        if self._new:
+            self._keys = np.union1d(self._keys, np.concatenate(self._new))
+            self._new, self._n_new = [], 0
 
-    def result(self) -> tuple[np.ndarray, np.ndarray]:
+    def keys(self) -> np.ndarray:
         self._merge()
-        if not self._parts:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return self._parts[0]
+        return self._keys
 
 
 class _Representatives:
@@ -365,7 +375,7 @@ class _Representatives:
 
     def __init__(self, x0: float, y0: float, pixel_m: float):
         self.x0, self.y0, self.pixel = x0, y0, pixel_m
-        self._pixels = _SparseCounts()
+        self._pixels = _KeySet()
 
     def add(self, x: np.ndarray, y: np.ndarray) -> None:
         if x.size == 0:
@@ -378,16 +388,16 @@ class _Representatives:
         keys = fx.astype(np.int64) + (1 << 30)
         keys <<= 32
         keys |= fy.astype(np.int64) + (1 << 30)
-        # consecutive shots share pixels: drop repeats before the sort
-        keep = np.empty(keys.size, bool)
-        keep[0] = True
+        # consecutive shots share pixels, or alternate between two across a pixel edge: drop
+        # repeats of the last two keys before the sort
+        keep = np.ones(keys.size, bool)
         np.not_equal(keys[1:], keys[:-1], out=keep[1:])
-        keys = np.unique(keys[keep])
-        self._pixels.add(keys, np.ones(keys.size, np.int64))
+        keep[2:] &= keys[2:] != keys[:-2]
+        self._pixels.add(np.unique(keys[keep]))
 
     def points(self) -> np.ndarray:
         """(n, 2) centres of the pixels with a detection."""
-        keys = self._pixels.result()[0]
+        keys = self._pixels.keys()
         ix = (keys >> 32) - (1 << 30)
         iy = (keys & 0xFFFFFFFF) - (1 << 30)
         return np.column_stack([self.x0 + (ix + 0.5) * self.pixel,
@@ -531,7 +541,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
     snr_w = _snr_bin_db(n_cells)
     n_bins = int(round((SNR_RANGE_DB[1] - SNR_RANGE_DB[0]) / snr_w)) + 2   # under, overflow
     snr_hist = np.zeros(n_cells * n_bins, np.int32)
-    cell_tracks = _SparseCounts()
+    cell_tracks = _KeySet()
     track_ids: dict = {}
     reps = _Representatives(x0, y0, cell_m / GAP_PIXELS_PER_CELL)
     tracks = TrackBuilder(cell_m / TRACK_STEP_PER_CELL)
@@ -549,7 +559,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
         for f in files:
             last_platform = None
             tracks.new_file(f.index, f.n_beams)
-            for o0, v in _blocks(f):
+            for o0, v in _blocks(f, _BLOCK_VARIABLES):
                 x, y = v["x"], v["y"]
                 nb, m = x.shape
                 ok = np.isfinite(x) & np.isfinite(y)
@@ -605,8 +615,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
                 key = cell * (1 << 24) + tid[inside]
                 keep = np.ones(key.size, bool)
                 keep[1:] = key[1:] != key[:-1]
-                key = np.unique(key[keep])
-                cell_tracks.add(key, np.ones(key.size, np.int64))
+                cell_tracks.add(np.unique(key[keep]))
                 # detection representatives (every detection, inside the grid or not)
                 reps.add(x[det], y[det])
                 # thinned tracks and along-track spacings
@@ -635,7 +644,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
     reps_xy = reps.points()
     return {"shots": shots, "detected": detected, "e_n": e_n, "e_sum": e_sum, "e_sq": e_sq,
             "s_n": s_n, "s_sq": s_sq, "snr_hist": snr_hist.reshape(n_cells, n_bins),
-            "snr_bin_db": snr_w, "cell_tracks": cell_tracks.result()[0], "reps": reps_xy,
+            "snr_bin_db": snr_w, "cell_tracks": cell_tracks.keys(), "reps": reps_xy,
             "tree": cKDTree(reps_xy), "tracks": tracks.finish(),
             "spacing_hist": tracks.spacing_hist,
             "flight_time_s": flight_time, "track_length_m": track_length,
