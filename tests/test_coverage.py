@@ -196,13 +196,14 @@ def test_crossing_between_files_counts_their_epochs(tmp_path):
 
 
 def test_demo_cells_against_histogram2d(tmp_path):
-    """The demo survey (first 300 s of missions/greenland_uav.toml): cell counts over the survey
-    bounds equal an independent count of the file's footprints (numpy.histogram2d)."""
+    """The demo survey (missions/greenland_uav.toml, as make demo flies it): cell counts over
+    the survey bounds equal an independent count of the file's footprints (numpy.histogram2d),
+    and GDAL (rasterio) reads the grid with its projection and cell size."""
     from chirplidar.mission.runner import run_mission
 
     root = Path(__file__).resolve().parents[1]
     res = run_mission(root / "missions" / "greenland_uav.toml", out=tmp_path / "demo.nc",
-                      overrides=["survey.stop_s=300"], date_created=DATE)
+                      date_created=DATE)
     ds = res.dataset
     from shapely import wkt
 
@@ -227,6 +228,14 @@ def test_demo_cells_against_histogram2d(tmp_path):
     xo = xr.open_dataset(out, group="crossovers")
     assert "dh" in xo and xo.sizes["crossover"] == 0
     xo.close()
+    import rasterio
+
+    with rasterio.open(f"NETCDF:{out}:detected_shots") as src:
+        assert src.crs.to_epsg() == 3413
+        assert (*src.res, src.bounds.left, src.bounds.bottom) == pytest.approx((100.0, 100.0,
+                                                                               x0, y0))
+        img = src.read(1)             # GDAL's rows run north to south
+    assert np.array_equal(img[::-1], grid["detected_shots"].values)
 
 
 def test_cli_json_png_and_bad_input(lattice_file, tmp_path, capsys):

@@ -120,3 +120,39 @@ def png_path(name: str, value):
     if path.suffix.lower() != ".png":
         raise ValueError(f"{name}: must name a .png file, got {str(path)!r}")
     return path
+
+
+def writable_file(option: str, path, suffix: str, *, make_parents: bool = False):
+    """Check, before any work, that the file ``path`` can be written: ValueError, one line
+    naming ``option``, when its name does not end in ``suffix``, it is a directory, its folder
+    does not exist (with ``make_parents``: the nearest existing folder above it, where the
+    missing ones would be made, is not a directory) or cannot be written. Writable means
+    ``os.access`` says so and a probe file can be created (and is removed) there: ``os.access``
+    says yes to root everywhere, also in /proc. Returns the path."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    path = Path(path)
+    if path.suffix.lower() != suffix:
+        raise ValueError(f"{option} {path}: the file name must end in {suffix}")
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a directory; name a {suffix} file in it")
+    folder = path.parent
+    if make_parents:
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+    if not folder.is_dir():
+        what = "is not a directory" if folder.exists() else "does not exist"
+        raise ValueError(f"{option} {path}: {folder} {what}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ValueError(f"{option} {path}: the file exists and cannot be written")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path}: cannot write in {folder} (permission denied)")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".chirplidar-check-"):
+            pass
+    except OSError as exc:
+        raise ValueError(f"{option} {path}: cannot write in {folder} (creating a file "
+                          f"there fails: {exc.strerror or exc})") from None
+    return path

@@ -298,24 +298,18 @@ _MAP_SUMMARY = {"fraction_covered": "fraction_covered", "cells_covered": "cells_
 
 
 def _output_path(option: str, value, suffix: str, *, overwrite: bool | None) -> Path:
-    """An output file named on the command line, checked before any work: its suffix, an
-    existing and writable directory, not a directory itself, and (``overwrite`` not None) not an
-    existing file unless ``overwrite``."""
-    import os
+    """An output file named on the command line, checked before any work
+    (:func:`chirplidar._checks.writable_file`) and, unless ``overwrite`` is None (a picture is
+    replaced), refused when it exists without ``--overwrite``."""
+    from . import _checks
 
-    path = Path(value)
-    if path.suffix.lower() != suffix:
-        raise UsageError(f"{option} {path}: the file must end in {suffix}")
-    if path.is_dir():
-        raise UsageError(f"{option} {path}: is a directory")
+    try:
+        path = _checks.writable_file(option, value, suffix)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if overwrite is not None and path.exists() and not overwrite:
         raise UsageError(f"{option} {path} exists: pass --overwrite to replace it "
                          "(nothing was computed)")
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise UsageError(f"{option} {path}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK):
-        raise UsageError(f"{option} {path}: directory {directory} is not writable")
     return path
 
 

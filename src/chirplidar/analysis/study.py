@@ -100,7 +100,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import sys
 import tempfile
@@ -112,6 +111,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .. import _checks
 from ..config.loader import (
     ConfigError,
     _known,
@@ -860,35 +860,11 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
 
 
 def check_output_file(option: str, path, suffix: str, *, make_parents: bool = False) -> Path:
-    """Check, before any work, that the file ``path`` can be written: ConfigError, one line
-    naming ``option``, when its name does not end in ``suffix``, it is a directory, its folder
-    does not exist (with ``make_parents``: the nearest existing folder above it, where the
-    missing ones would be made, is not a directory) or cannot be written. Writable means
-    ``os.access`` says so and a probe file can be created (and is removed) there: ``os.access``
-    says yes to root everywhere, also in /proc. Returns the path."""
-    path = Path(path)
-    if path.suffix.lower() != suffix:
-        raise ConfigError(f"{option} {path}: the file name must end in {suffix}")
-    if path.is_dir():
-        raise ConfigError(f"{option} {path}: is a directory; name a {suffix} file in it")
-    folder = path.parent
-    if make_parents:
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
-    if not folder.is_dir():
-        what = "is not a directory" if folder.exists() else "does not exist"
-        raise ConfigError(f"{option} {path}: {folder} {what}")
-    if path.exists() and not os.access(path, os.W_OK):
-        raise ConfigError(f"{option} {path}: the file exists and cannot be written")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ConfigError(f"{option} {path}: cannot write in {folder} (permission denied)")
+    """:func:`chirplidar._checks.writable_file`, its error a ConfigError (one line, exit 2)."""
     try:
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".chirplidar-check-"):
-            pass
-    except OSError as exc:
-        raise ConfigError(f"{option} {path}: cannot write in {folder} (creating a file "
-                          f"there fails: {exc.strerror or exc})") from None
-    return path
+        return _checks.writable_file(option, path, suffix, make_parents=make_parents)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = None,
