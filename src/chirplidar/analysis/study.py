@@ -120,6 +120,7 @@ from ..config.loader import (
     load_mission,
     resolve_key,
 )
+from ..mission.runner import quantile_between, quantile_ranks
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -606,25 +607,15 @@ def _power_dbm(values) -> np.ndarray:
     return np.atleast_1d(power_dbm(np.asarray(values, dtype=np.float64)))
 
 
-def _quantile_ranks(n: int, q: float) -> tuple[int, int, float]:
-    """np.percentile's linear method: (lower rank, upper rank, weight of the upper)."""
-    v = (n - 1) * q
-    lo = min(math.floor(v), n - 1)
-    hi = min(lo + 1, n - 1)
-    g = 0.0 if v >= n - 1 else v - lo
-    return lo, hi, g
-
-
 def _lerp(a: float, b: float, g: float, *, median: bool = False) -> float:
-    """numpy's interpolation between order statistics a <= b with weight g of b
-    (``np.percentile``, linear), or with ``median`` the mean of the middle two as
-    ``np.median`` takes it; -inf (zero signal) when a is -inf."""
+    """:func:`~chirplidar.mission.runner.quantile_between` of the order statistics a <= b, or
+    with ``median`` the mean of the middle two as ``np.median`` takes it; -inf (zero signal)
+    when a is -inf."""
     if a == -math.inf:
         return -math.inf
     if median:
         return a if g == 0 else (a + b) / 2
-    diff = b - a
-    return b - diff * (1 - g) if g >= 0.5 else a + diff * g
+    return quantile_between(a, b, g)
 
 
 _QUANTILES = {"snr_p10_db": 0.10, "median_snr_db": 0.50, "snr_p90_db": 0.90}
@@ -714,8 +705,8 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
     if first.h_n >= 2:   # the sample standard deviation (ddof 1); one shot has no spread
         out["height_precision_m"] = math.sqrt(first.h_m2 / (first.h_n - 1))
     if n_s:
-        snr_q = {name: _quantile_ranks(n_s, q) for name, q in _QUANTILES.items()}
-        pow_q = _quantile_ranks(n_s, 0.5)
+        snr_q = {name: quantile_ranks(n_s, q) for name, q in _QUANTILES.items()}
+        pow_q = quantile_ranks(n_s, 0.5)
         snr_ranks = sorted({r for lo, hi, _ in snr_q.values() for r in (lo, hi)})
         pow_ranks = sorted({pow_q[0], pow_q[1]})
         if first.kept is not None:

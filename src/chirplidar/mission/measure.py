@@ -121,6 +121,13 @@ def reference_power_fraction(config, range_m):
     return np.asarray(lambertian_power_fraction(1.0, area, range_m, 0.0), float)
 
 
+def reference_attenuation_db(config, range_m, fraction):
+    """The attenuation [dB] that turns the reference target's received power fraction at
+    ``range_m`` into ``fraction`` (received / transmitted power): 10 log10(f_ref(R) / fraction),
+    the ``channel.extra_attenuation_db`` of a link-tier shot aimed at that range."""
+    return 10.0 * np.log10(reference_power_fraction(config, range_m) / fraction)
+
+
 def sub_ray_power_fractions(config, scene, geom):
     """(n, b, k) received / transmitted power of every footprint sub-ray (beam weight included),
     before atmospheric and optical losses; 0 for misses."""
@@ -467,8 +474,7 @@ def measure_link(config, scene, geom, seq) -> dict:
     f_b = rate * lag
     no_overlap, out_of_band = beat_flags(config, bud, lag, f_b)
     if np.any(ok):
-        h = psig[ok] / bud.ptx_w
-        att = 10.0 * np.log10(reference_power_fraction(config, r_mean[ok]) / h)
+        att = reference_attenuation_db(config, r_mean[ok], psig[ok] / bud.ptx_w)
         # Nodes at the mean phase power ("random") or at the optimum phase (the static phases:
         # each shot's own phase below; the node's own propagation phase would be arbitrary).
         cp = config.channel.carrier_phase

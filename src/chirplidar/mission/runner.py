@@ -590,6 +590,22 @@ def _order_statistics(blocks, ranks: list[list[int]], first_pass=None) -> list[l
     return [[_key_value(p) for p in ps] for ps in prefix]
 
 
+def quantile_ranks(n: int, q: float) -> tuple[int, int, float]:
+    """``np.percentile``'s linear method on n sorted values: (lower rank, upper rank, weight of
+    the upper); :func:`quantile_between` of the two order statistics is the quantile q."""
+    v = (n - 1) * q
+    lo = min(math.floor(v), n - 1)
+    hi = min(lo + 1, n - 1)
+    return lo, hi, (0.0 if v >= n - 1 else v - lo)
+
+
+def quantile_between(a: float, b: float, g: float) -> float:
+    """numpy's linear interpolation between the order statistics a <= b with weight g of b
+    (its rounding: from b downwards when g >= 1/2)."""
+    diff = b - a
+    return b - diff * (1 - g) if g >= 0.5 else a + diff * g
+
+
 #: The chunk variables the summary reads.
 SUMMARY_VARIABLES = ("detected", "snr_db", "range_error")
 
@@ -674,10 +690,7 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
         rms = math.sqrt(s2 / n_det)
         # np.median: the middle value or the mean of the middle two.
         mid = [n_det // 2] if n_det % 2 else [n_det // 2 - 1, n_det // 2]
-        # np.percentile(.., 95), linear method: lerp between ranks floor(v) and floor(v) + 1.
-        v = (n_det - 1) * (95 / 100)
-        lo = min(math.floor(v), n_det - 1)
-        hi = min(lo + 1, n_det - 1)
+        lo, hi, g = quantile_ranks(n_det, 0.95)     # np.percentile(.., 95), linear method
         dev = [0.0]
 
         def add_dev(block):
@@ -688,10 +701,7 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
             add_dev)
         std = math.sqrt(dev[0] / n_det)
         median = snr_q[0] if len(mid) == 1 else (snr_q[0] + snr_q[1]) / 2
-        a, b = err_q
-        g = 0.0 if v >= n_det - 1 else v - lo
-        diff = b - a
-        p95 = b - diff * (1 - g) if g >= 0.5 else a + diff * g
+        p95 = quantile_between(*err_q, g)
     return {
         "output": str(path), "tier": tier, "seed": int(seed), "beams": int(n_beams),
         "shots": int(n_obs), "returns": int(n_obs * n_beams), "detected": n_det,

@@ -213,11 +213,8 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
     if tier == "rf":
         cfg, echoes = measure.rf_shot_setup(config, base, ptx_w, geom, returns, i, j)
     else:
-        # As measure_link: the attenuation that turns the reference target's power into the
-        # shot's, 10 log10(f_ref(R0) / (P_sig / P_tx)).
-        r0 = float(r_mean[i, j])
-        att = float(10.0 * np.log10(measure.reference_power_fraction(config, r0)
-                                    / (psig[i, j] / ptx_w)))
+        r0 = float(r_mean[i, j])   # aimed as measure_link aims each shot
+        att = float(measure.reference_attenuation_db(config, r0, psig[i, j] / ptx_w))
         over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
         if "doppler" in base.effects.enabled:
             over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])

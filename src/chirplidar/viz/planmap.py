@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import _checks
 from ._mpl import plt, save
-from .scene3d import _DETECTED_COLORS, _FLAG_COLORS, check_bounds_m, colour_range
+from .scene3d import _DETECTED_COLORS, _FLAG_COLORS, check_bounds_m, colour_range, units_label
 
 __all__ = ["hillshade", "plan_map_figure", "plot_plan_map", "scale_bar_length_m",
            "true_north_bearing_deg"]
@@ -210,12 +210,6 @@ def _grid_epsg(grid) -> int | None:
             return None
         return None if code is None else int(code)
     return None
-
-
-def _label(long_name: str, units) -> str:
-    """Colour-bar label "long_name (units)"; no brackets for dimensionless units ("1", "")."""
-    units = "" if units is None else str(units).strip()
-    return long_name if units in ("", "1") else f"{long_name} ({units})"
 
 
 def _decimation_step(n: int, n_max: int) -> int:
@@ -1009,7 +1003,7 @@ def plan_map_figure(*, terrain=None, tracks=None, grid=None, var=None, shots=Non
             summary_cols = _summary_columns(summary_text.splitlines(), probe[0][0] - 0.3)
             summary_h = _summary_height_in(summary_cols)
         scales = [_display_units(c) for c in colorbars]
-        labels = [_wrap_label(_label(c["long_name"], units), probe[1][3])
+        labels = [_wrap_label(units_label(c["long_name"], units), probe[1][3])
                   for c, (units, _) in zip(colorbars, scales)]
         (fig_w, fig_h), ax_rect, cbar_rects = _layout(
             view, figsize_in, n_title_lines, [lab.count("\n") + 1 for lab in labels], n_rows,

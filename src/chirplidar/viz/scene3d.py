@@ -179,10 +179,14 @@ def _is_decibel(var) -> bool:
     return str(var.attrs.get("units", "")).strip().lower() == "db"
 
 
-def _label(var) -> str:
-    long_name = str(var.attrs.get("long_name", var.name))
-    units = str(var.attrs.get("units", "")).strip()
+def units_label(long_name: str, units) -> str:
+    """Colour-bar label "long_name (units)"; no brackets for dimensionless units ("1", "")."""
+    units = "" if units is None else str(units).strip()
     return long_name if units in ("", "1") else f"{long_name} ({units})"
+
+
+def _label(var) -> str:
+    return units_label(str(var.attrs.get("long_name", var.name)), var.attrs.get("units", ""))
 
 
 def _first_finite_per_obs(*arrays: np.ndarray) -> np.ndarray:
