@@ -470,8 +470,8 @@ class OrbitPlatform(_Model):
     """Keplerian elements with J2 drift; the orbit is placed so its nadir point passes the scene
     centre at t = 0 (the RAAN and the anomaly are solved for, on the chosen pass)."""
 
-    altitude_m: float = Field(gt=100e3, description="altitude of the circular orbit above the "
-                              "equatorial radius (a = R_E + altitude)")
+    altitude_m: float = Field(gt=100e3, description="height of the satellite above the WGS-84 "
+                              "ellipsoid where its nadir crosses the scene centre (t = 0)")
     eccentricity: float = Field(ge=0, lt=0.1)
     inclination_deg: float = Field(gt=0, lt=180)
     pass_direction: Literal["ascending", "descending"]
@@ -479,9 +479,11 @@ class OrbitPlatform(_Model):
 
 
 class TlePlatform(_Model):
-    line1: str
-    line2: str
-    time_offset_s: float = Field(description="TLE-epoch time of the run's t = 0")
+    """A two-line element set propagated with SGP4; the run's t = 0 is ``survey.epoch_utc``,
+    which must lie within ``TLE_MAX_AGE_DAYS`` of the element set's epoch."""
+
+    line1: str = Field(description="TLE line 1 (69 characters, with its checksum)")
+    line2: str = Field(description="TLE line 2 (69 characters, with its checksum)")
 
 
 class Platform(_Model):

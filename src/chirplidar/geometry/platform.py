@@ -429,11 +429,18 @@ class KeplerOrbit:
 
         dRAAN/dt  = -3/2 n J2 (R_E / p)**2 cos(i)
         dargp/dt  =  3/4 n J2 (R_E / p)**2 (4 - 5 sin(i)**2)
+        dM/dt     =  n + 3/4 n J2 (R_E / p)**2 sqrt(1 - e**2) (2 - 3 sin(i)**2)
 
-    The mean anomaly advances at the unperturbed ``n`` (the J2 correction to the mean motion is
-    not modelled). ``j2=False`` switches the drift off (pure two-body). Velocities are the exact
-    time derivative of the modelled positions (including the drift terms). ECI -> ECEF uses the
-    linear Earth-rotation model of the module docstring.
+    ``j2=False`` switches the drift off (pure two-body). Velocities are the exact time derivative
+    of the modelled positions (including the drift terms). ECI -> ECEF uses the linear
+    Earth-rotation model of the module docstring.
+
+    What it is for: design studies (an orbit placed over a scene at any altitude and
+    inclination, no element set needed). The secular rates leave out J2's short-period terms,
+    drag and the higher harmonics: against SGP4 started from the same mean elements it drifts
+    by ~2 km over a 10-minute pass (an orbit of 496 km, e ~ 0; measured in
+    ``tests/test_orbit.py``), mostly along track. Flown missions and pass predictions use
+    :class:`TleOrbit`.
     """
 
     semi_major_axis_m: float
@@ -487,12 +494,18 @@ class KeplerOrbit:
     def arg_perigee_rate_rad_s(self) -> float:
         return 0.75 * self._k * (4 - 5 * np.sin(self.inclination_rad) ** 2)
 
+    @property
+    def mean_anomaly_rate_rad_s(self) -> float:
+        """Secular rate of the mean anomaly: n plus its J2 term [rad/s]."""
+        return self.mean_motion_rad_s + 0.75 * self._k * np.sqrt(1 - self.eccentricity ** 2) * (
+            2 - 3 * np.sin(self.inclination_rad) ** 2)
+
     def states_eci(self, t_s):
         """ECI positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
         t = _times("t_s", t_s)
         dt = t - self.epoch_s
         a, e, n = self.semi_major_axis_m, self.eccentricity, self.mean_motion_rad_s
-        M = self.mean_anomaly_rad + n * dt
+        M = self.mean_anomaly_rad + self.mean_anomaly_rate_rad_s * dt
         E = M + e * np.sin(M)
         for _ in range(50):  # Newton on Kepler's equation, all shots at once
             dE = (E - e * np.sin(E) - M) / (1 - e * np.cos(E))
@@ -503,7 +516,7 @@ class KeplerOrbit:
         q = np.sqrt(1 - e * e)
         r_norm = a * (1 - e * cE)
         x, y = a * (cE - e), a * q * sE
-        vf = np.sqrt(MU_EARTH_M3_S2 * a) / r_norm
+        vf = np.sqrt(MU_EARTH_M3_S2 * a) / r_norm * (self.mean_anomaly_rate_rad_s / n)
         wdot = self.arg_perigee_rate_rad_s
         vx, vy = -vf * sE - wdot * y, vf * q * cE + wdot * x
         raan = self.raan_rad + self.raan_rate_rad_s * dt
@@ -533,41 +546,101 @@ class KeplerOrbit:
         return self.states(t_s)[1]
 
 
+#: Largest distance [days] between a TLE's epoch and the times it is propagated to. SGP4's
+#: along-track error grows by ~1-3 km per day from the epoch (Vallado et al. 2006); beyond a
+#: few weeks a fresher element set is needed, and a campaign of a season is a planning estimate.
+TLE_MAX_AGE_DAYS = 120.0
+
+
 @dataclass(frozen=True)
 class TleOrbit:
-    """SGP4 orbit from a two-line element set (needs ``pip install chirplidar[orbit]``).
+    """SGP4 orbit from a two-line element set, in ITRS (ECEF) with Earth orientation.
 
-    ``t_s`` is seconds since the TLE epoch. SGP4 gives TEME states; they are rotated to ECEF by
-    GMST (IAU-82, sgp4's ``gstime``) at UT1 ~= UTC, without polar motion (metre-level).
+    ``t_s`` is seconds after ``epoch_utc`` (ISO 8601 UTC, the run's time origin). SGP4 (the
+    ``sgp4`` package) gives TEME states; :func:`earth_orientation.teme_to_itrs` rotates them to
+    ITRS with UT1 - UTC and polar motion from the shipped IERS table.
     """
 
     line1: str
     line2: str
+    epoch_utc: str
     frame: str = field(default="ecef", init=False)
 
     def __post_init__(self):
-        try:
-            from sgp4.api import Satrec
-        except ImportError:
-            raise ImportError("TleOrbit needs the sgp4 package: install it with "
-                              "`pip install chirplidar[orbit]`") from None
-        sat = Satrec.twoline2rv(str(self.line1), str(self.line2))
+        from sgp4.api import Satrec
+
+        from chirplidar.geometry import earth_orientation as eo
+
+        l1, l2 = str(self.line1).rstrip(), str(self.line2).rstrip()
+        for name, line, first in (("line1", l1, "1"), ("line2", l2, "2")):
+            if len(line) != 69 or line[0] != first:
+                raise ValueError(f"{name} is not line {first} of a TLE (69 characters starting "
+                                 f"with '{first} ', got {len(line)}: {line[:20]!r}...)")
+            digits = sum(int(c) for c in line[:68] if c.isdigit()) + line[:68].count("-")
+            if not line[68].isdigit() or digits % 10 != int(line[68]):
+                raise ValueError(f"{name}: TLE checksum fails (column 69 is {line[68]!r}, the "
+                                 f"line's digits and minus signs sum to {digits} -> "
+                                 f"{digits % 10}): a damaged or mistyped element set")
+        if l1[2:7] != l2[2:7]:
+            raise ValueError(f"line1 and line2 belong to different satellites "
+                             f"({l1[2:7].strip()} and {l2[2:7].strip()})")
+        sat = Satrec.twoline2rv(l1, l2)
         if sat.error:
             raise ValueError(f"line1/line2 are not a valid TLE (sgp4 error {sat.error})")
+        t0 = eo.mjd_utc(eo.parse_utc(self.epoch_utc, "epoch_utc"))
+        object.__setattr__(self, "line1", l1)
+        object.__setattr__(self, "line2", l2)
         object.__setattr__(self, "_sat", sat)
+        object.__setattr__(self, "_epoch_mjd", t0)
 
-    def states(self, t_s):
-        from sgp4.propagation import gstime
+    @property
+    def tle_epoch_mjd(self) -> float:
+        """The element set's epoch, MJD (UTC)."""
+        return float(self._sat.jdsatepoch - 2400000.5 + self._sat.jdsatepochF)
+
+    @property
+    def epoch_mjd(self) -> float:
+        """The run's time origin ``epoch_utc``, MJD (UTC)."""
+        return float(self._epoch_mjd)
+
+    @property
+    def mean_motion_rad_s(self) -> float:
+        return float(self._sat.no_kozai / 60.0)
+
+    @property
+    def inclination_rad(self) -> float:
+        return float(self._sat.inclo)
+
+    def check_window(self, t0_s: float, t1_s: float, key: str = "t_s") -> None:
+        """ValueError naming ``key`` when [t0_s, t1_s] (s after ``epoch_utc``) reaches more than
+        :data:`TLE_MAX_AGE_DAYS` from the TLE epoch."""
+        age = np.array([t0_s, t1_s]) / 86400.0 + self.epoch_mjd - self.tle_epoch_mjd
+        if np.max(np.abs(age)) > TLE_MAX_AGE_DAYS:
+            raise ValueError(f"{key}: the window reaches {np.max(np.abs(age)):.0f} days from the "
+                             f"TLE epoch; SGP4 is not trusted beyond {TLE_MAX_AGE_DAYS:.0f} days "
+                             "(its error grows by km per day): use an element set from the "
+                             "window's time")
+
+    def states_teme(self, t_s):
+        """TEME positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
         t = _times("t_s", t_s)
         sat = self._sat
+        d = self.epoch_mjd - self.tle_epoch_mjd + t / 86400.0   # days after the TLE epoch
         jd = np.full(t.shape, sat.jdsatepoch)
-        fr = sat.jdsatepochF + t / 86400.0
+        fr = sat.jdsatepochF + d
         err, r, v = sat.sgp4_array(jd, fr)
         if np.any(err != 0):
-            raise ValueError(f"t_s: SGP4 propagation failed (error codes {sorted(set(err[err != 0]))})")
-        r, v = np.asarray(r) * 1e3, np.asarray(v) * 1e3
-        gmst = np.array([gstime(a + b) for a, b in zip(jd, fr)]) if len(t) else np.zeros(0)
-        return _eci_to_ecef(r.reshape(-1, 3), v.reshape(-1, 3), gmst)
+            raise ValueError(f"t_s: SGP4 propagation failed (error codes "
+                             f"{sorted(set(err[err != 0].tolist()))}: decayed or invalid orbit)")
+        return np.asarray(r).reshape(-1, 3) * 1e3, np.asarray(v).reshape(-1, 3) * 1e3
+
+    def states(self, t_s):
+        """ITRS positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
+        from chirplidar.geometry.earth_orientation import teme_to_itrs
+
+        t = _times("t_s", t_s)
+        r, v = self.states_teme(t)
+        return teme_to_itrs(r, v, self.epoch_mjd + t / 86400.0)
 
     def positions(self, t_s):
         return self.states(t_s)[0]

@@ -54,11 +54,13 @@ def _xy(points, coordinates: str, scene) -> np.ndarray:
 
 
 def _orbit_over(scene, orb, source: str) -> KeplerOrbit:
-    """Circular-ish Kepler orbit whose geodetic nadir passes the scene centre at t = 0.
+    """Kepler + J2 orbit whose geodetic nadir passes the scene centre at t = 0, at the height
+    ``orb.altitude_m`` above the WGS-84 ellipsoid there.
 
     Start from the spherical solution (argument of latitude u with sin(lat) = sin(i) sin(u);
-    RAAN from the longitude) and refine RAAN and the mean anomaly by Newton steps on the
-    satellite's geodetic latitude and longitude (pyproj), to far below a metre.
+    RAAN from the longitude; a = R_E + altitude) and refine RAAN, the mean anomaly and the
+    semi-major axis by Newton steps on the satellite's geodetic latitude, longitude and height
+    (pyproj), to far below a millimetre.
     """
     from ..units import WGS84_A_M
 
@@ -77,25 +79,26 @@ def _orbit_over(scene, orb, source: str) -> KeplerOrbit:
         u = np.pi - u
     raan = np.radians(lon_c) - np.arctan2(np.cos(inc) * np.sin(u), np.cos(u))
 
-    def make(raan_rad, m_rad):
-        return KeplerOrbit(WGS84_A_M + orb.altitude_m, orb.eccentricity, inc, raan_rad, 0.0,
-                           m_rad, 0.0, j2=orb.j2)
+    def make(raan_rad, m_rad, a_m):
+        return KeplerOrbit(a_m, orb.eccentricity, inc, raan_rad, 0.0, m_rad, 0.0, j2=orb.j2)
 
-    def nadir(raan_rad, m_rad):
-        p = make(raan_rad, m_rad).positions(np.zeros(1))[0]
-        lat, lon, _ = frames.ecef_to_geodetic(p[0], p[1], p[2])
-        return np.array([float(lat) - lat_c, (float(lon) - lon_c + 180.0) % 360.0 - 180.0])
+    def nadir(x):
+        p = make(*x).positions(np.zeros(1))[0]
+        lat, lon, h = frames.ecef_to_geodetic(p[0], p[1], p[2])
+        return np.array([float(lat) - lat_c, (float(lon) - lon_c + 180.0) % 360.0 - 180.0,
+                         (float(h) - orb.altitude_m) * 1e-5])   # 1 m ~ 1e-5 deg of arc
 
-    x = np.array([raan, u])  # argument of perigee 0: mean anomaly ~ u for small e
-    for _ in range(8):
-        f = nadir(*x)
-        if np.max(np.abs(f)) < 1e-9:  # degrees: 0.1 mm
+    x = np.array([raan, u, WGS84_A_M + orb.altitude_m])  # perigee argument 0: M ~ u for e ~ 0
+    steps = np.array([1e-7, 1e-7, 1.0])
+    for _ in range(12):
+        f = nadir(x)
+        if np.max(np.abs(f)) < 1e-10:  # degrees: 0.01 mm
             break
-        jac = np.empty((2, 2))
-        for k in range(2):
-            dx = np.zeros(2)
-            dx[k] = 1e-7
-            jac[:, k] = (nadir(*(x + dx)) - f) / 1e-7
+        jac = np.empty((3, 3))
+        for k in range(3):
+            dx = np.zeros(3)
+            dx[k] = steps[k]
+            jac[:, k] = (nadir(x + dx) - f) / steps[k]
         x = x - np.linalg.solve(jac, f)
     return make(*x)
 
@@ -142,7 +145,10 @@ def _path(config, scene, source: str):
     if pf.kind == "satellite":
         if pf.orbit is not None:
             return _orbit_over(scene, pf.orbit, source)
-        return _TleShifted(TleOrbit(pf.tle.line1, pf.tle.line2), pf.tle.time_offset_s)
+        try:
+            return TleOrbit(pf.tle.line1, pf.tle.line2, config.survey.epoch_utc)
+        except ValueError as exc:
+            raise ConfigError(f"{source}: platform.tle.{exc}") from None
     sec = pf.uav if pf.kind == "uav" else pf.aircraft
     key = f"platform.{pf.kind}"
     hdg = np.radians(sec.heading_deg) if sec.heading_deg is not None else None
@@ -189,21 +195,6 @@ def track_index(path, t_s) -> np.ndarray:
     return np.zeros(np.shape(t_s), dtype=np.int64)
 
 
-@dataclass(frozen=True)
-class _TleShifted:
-    """A TLE orbit whose run time 0 is ``offset_s`` after the TLE epoch."""
-
-    orbit: TleOrbit
-    offset_s: float
-    frame: str = "ecef"
-
-    def positions(self, t_s):
-        return self.orbit.positions(np.asarray(t_s, float) + self.offset_s)
-
-    def velocities(self, t_s):
-        return self.orbit.velocities(np.asarray(t_s, float) + self.offset_s)
-
-
 def plan_survey(config, scene, source: str) -> SurveyPlan:
     """The run's path, beams and shot clock; ConfigError (naming ``source`` and the key) on
     sections that are missing or a span the path cannot fly."""
@@ -219,6 +210,11 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
         if not hasattr(path, "duration_s"):
             raise ConfigError(f"{source}: survey.stop_s is required for a satellite")
         stop = path.duration_s
+    if isinstance(path, TleOrbit):
+        try:
+            path.check_window(sv.start_s, stop, "survey.epoch_utc")
+        except ValueError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
     if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
         raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the path "
                           f"({path.duration_s:.1f} s)")
