@@ -1,4 +1,5 @@
-"""Command line ``chirplidar``: ``shot``, ``sweep``, ``run``, ``view``, ``bench`` and ``demo``.
+"""Command line ``chirplidar``: ``shot``, ``sweep``, ``run``, ``coverage``, ``view``, ``study``,
+``passes``, ``bench`` and ``demo``.
 
 Exit codes: 0 success, 1 a run finished but a requested product could not be made (e.g. no
 spectrum to plot), 2 bad input (configuration error, unknown name, bad option), 130 interrupted.
@@ -601,6 +602,85 @@ def cmd_bench(args) -> int:
     return 0
 
 
+#: Longest window of ``chirplidar passes`` (a TLE is refused beyond 120 days of its epoch).
+PASSES_MAX_DAYS = 366.0
+
+
+def cmd_passes(args) -> int:
+    from .analysis.passes import (find_passes, format_passes, orbit_from_mission,
+                                  orbit_from_tle_file, passes_report, region_from_geojson,
+                                  region_from_scene)
+    from .config import ConfigError
+    from .geometry.earth_orientation import parse_utc, utc_iso
+
+    if (args.mission is None) == (args.tle is None):
+        raise UsageError("give a satellite MISSION file or --tle FILE (one of them)")
+    png = None if args.png is None else _output_path("--png", args.png, ".png", overwrite=None)
+    try:
+        start = parse_utc(args.start, "--start")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if not (math.isfinite(args.days) and 0 < args.days <= PASSES_MAX_DAYS):
+        raise UsageError(f"--days must be > 0 and <= {PASSES_MAX_DAYS:g}, got {args.days:g}")
+    if args.tle is not None:
+        if args.region is None:
+            raise UsageError("--region is required with --tle (a scene .toml or a GeoJSON "
+                             "polygon)")
+        try:
+            source = orbit_from_tle_file(args.tle, utc_iso(start))
+        except ValueError as exc:
+            raise UsageError(f"--tle {exc}") from None
+    else:
+        source = orbit_from_mission(args.mission, utc_iso(start))
+    try:
+        if args.region is None:
+            if source.scene_file is None:
+                raise UsageError(f"{args.mission} has no [scene]: give --region")
+            region = region_from_scene(source.scene_file, source.scene_overrides)
+        else:
+            where = Path(args.region)
+            if not where.is_file():
+                raise UsageError(f"--region {where}: file does not exist")
+            if where.suffix.lower() == ".toml":
+                region = region_from_scene(where)
+            elif where.suffix.lower() in (".geojson", ".json"):
+                region = region_from_geojson(where)
+            else:
+                raise UsageError(f"--region {where}: expected a scene .toml or a .geojson "
+                                 "polygon")
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        raise UsageError(f"--region {exc}") from None
+    try:
+        passes = find_passes(source.orbit, region, start, args.days, beams=source.beams,
+                             attitude=source.attitude, region_height_m=region.height_m,
+                             doppler_steering=source.doppler_steering, progress=sys.stderr.isatty() and not args.no_progress)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    report = passes_report(passes, region, source, start, args.days)
+    if png is not None:
+        from .viz.passes import plot_passes
+
+        w = report["window"]
+        try:
+            path = plot_passes(passes, region, png, window=(w["start_utc"], w["end_utc"]),
+                               satellite=source.name)
+        except OSError as exc:
+            raise UsageError(f"cannot write {exc.filename or png}: "
+                             f"{exc.strerror or exc}") from None
+        print(f"wrote {path}", file=sys.stderr)
+    if not passes:
+        w = report["window"]
+        print(f"chirplidar passes: no pass of {source.name} over {region.name} between "
+              f"{w['start_utc']} and {w['end_utc']}", file=sys.stderr)
+    if args.json:
+        print(_dump_json(report))
+    elif passes:
+        print(format_passes(report))
+    return 0
+
+
 def cmd_demo(args) -> int:
     from .demo import format_summary, run_demo
 
@@ -838,6 +918,32 @@ def build_parser() -> argparse.ArgumentParser:
                         '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
                         '"peak_memory_mb", ...} (coverage) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("passes", help="which satellite passes cross a region in a time "
+                       "window: entry, exit, direction, closest approach, beam tracks, sun")
+    p.add_argument("mission", metavar="MISSION", nargs="?", default=None,
+                   help="satellite mission (its TLE or design orbit, beams and attitude; its "
+                        "scene is the default region), e.g. missions/icesat_like.toml")
+    p.add_argument("--tle", metavar="FILE", default=None,
+                   help="instead of MISSION: a TLE file (2 lines, or a name line and 2 lines)")
+    p.add_argument("--region", metavar="SCENE.toml|FILE.geojson", default=None,
+                   help="the region: a scene's terrain extent, or a GeoJSON Polygon / "
+                        "MultiPolygon in WGS-84 lon/lat (default: the mission's scene; "
+                        "required with --tle)")
+    p.add_argument("--start", required=True, metavar="UTC",
+                   help="window start, ISO 8601 with a Z, e.g. 2026-10-05T00:00:00Z")
+    p.add_argument("--days", type=float, required=True, metavar="N",
+                   help="window length in days (a TLE: within 120 days of its epoch)")
+    p.add_argument("--json", action="store_true",
+                   help='print one JSON object {"passes": [{"start_utc", "end_utc", '
+                        '"direction", "duration_s", "closest_utc", "closest_distance_km", '
+                        '"off_nadir_to_centre_deg", "sun_elevation_deg", "beams", '
+                        '"nadir_track_lonlat"}, ...], "window", "region", "satellite", '
+                        '"tle_epoch_utc"}')
+    p.add_argument("--png", metavar="MAP.png", default=None,
+                   help="map of the nadir and beam tracks over the region outline")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_passes)
 
     p = sub.add_parser("demo", help="reproduce thesis Fig. 5.7 (sensitivity of three receivers)")
     p.add_argument("--out", default="outputs", metavar="DIR",

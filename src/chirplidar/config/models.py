@@ -514,6 +514,9 @@ class AttitudeConfig(_Model):
     pitch_deg: float
     yaw_deg: float
     jitter_rad_rms: float = Field(ge=0, description="pointing jitter per axis (rms)")
+    doppler_steering: bool = Field(False, description="pitch every shot so its beams are "
+                                   "perpendicular to the velocity (zero Doppler shift, as "
+                                   "ICESat-2 steers), on top of pitch_deg")
 
 
 class Beams(_Model):
@@ -524,6 +527,10 @@ class Beams(_Model):
                                            "between pair centres")
     within_pair_deg: float | None = Field(None, gt=0, description="paired: angle between the "
                                           "two beams of a pair")
+    stagger_deg: float = Field(0.0, ge=0, description="paired: along-track angle between the "
+                               "two beams of a pair (the left one ahead)")
+    pair_power_ratio: float = Field(1.0, gt=0, description="paired: transmitted power of each "
+                                    "pair's left (strong) beam over its right (weak) one")
     cone_half_angle_deg: float | None = Field(None, gt=0, lt=60, description="conical: "
                                               "off-nadir angle")
     scan_rate_deg_s: float | None = Field(None, description="conical: azimuth rate")
@@ -562,6 +569,17 @@ class SurveyRun(_Model):
     epoch_utc: str = Field(description="ISO 8601 UTC date-time of t = 0 (the results' time origin)")
     detection_threshold_db: float = Field(description="SNR in the RBW a return needs to count "
                                           "as detected (the thesis quotes sensitivity at 10 dB)")
+    doppler_compensation: Literal["none", "lo_offset"] = Field(
+        "none", description="'lo_offset': each beam's local oscillator is shifted by the Doppler "
+        "shift predicted from the platform velocity and the beam's nominal pointing (an "
+        "acousto-optic shifter per beam), leaving what pointing jitter adds; 'none': the "
+        "shift acts (see also attitude.doppler_steering)")
+    range_window_m: float | None = Field(None, gt=0, description="width of the range window: "
+                                         "the reference delay follows each beam's range "
+                                         "predicted to the scene's mid-height surface, as an "
+                                         "altimeter's range gate does; returns outside it are "
+                                         "flagged (omitted: system.reference_delay_s or its "
+                                         "sys.fmaxopt rule)")
     subrays_per_beam: int = Field(ge=1, le=512, description="footprint samples per beam")
     chunk_shots: int = Field(20000, ge=1, description="shots per chunk (memory bound and "
                              "resume granularity)")

@@ -61,6 +61,7 @@ __all__ = [
     "paired_beams_across_track",
     "shot_geometry",
     "shot_times",
+    "zero_doppler_attitude",
 ]
 
 #: Earth constants (Vallado, Fundamentals of Astrodynamics, 4th ed., Table D-1 / WGS-84); the
@@ -688,6 +689,7 @@ class BeamPattern:
     off_nadir_rad: np.ndarray
     azimuth_rad: np.ndarray
     scan_rate_rad_s: float = 0.0
+    power_share: np.ndarray | None = None   # (n_beams,) transmitted power per beam, mean 1
 
     def __post_init__(self):
         o = _checks.real_array("off_nadir_rad", self.off_nadir_rad)
@@ -701,6 +703,12 @@ class BeamPattern:
         object.__setattr__(self, "azimuth_rad", a)
         object.__setattr__(self, "scan_rate_rad_s",
                            _checks.real_scalar("scan_rate_rad_s", self.scan_rate_rad_s))
+        share = np.ones(o.shape) if self.power_share is None else \
+            _checks.positive_array("power_share", self.power_share)
+        if share.shape != o.shape:
+            raise ValueError(f"power_share must have one value per beam {o.shape}, got "
+                             f"{share.shape}")
+        object.__setattr__(self, "power_share", share / share.mean())
 
     @property
     def n_beams(self) -> int:
@@ -711,19 +719,30 @@ def nadir_beam() -> BeamPattern:
     return BeamPattern(np.array([0.0]), np.array([0.0]))
 
 
-def paired_beams_across_track(pair_spacing_rad, within_pair_rad) -> BeamPattern:
+def paired_beams_across_track(pair_spacing_rad, within_pair_rad, stagger_rad=0.0,
+                              power_ratio=1.0) -> BeamPattern:
     """Three pairs of beams across track (ICESat-2-like), ordered left to right.
 
     Pair centres at across-track angles -pair_spacing_rad, 0, +pair_spacing_rad; the two beams of
-    a pair at +-within_pair_rad / 2 about the centre (ICESat-2 from ~496 km: pairs 3.3 km apart,
-    beams 90 m apart -> pair_spacing_rad ~ 6.65e-3, within_pair_rad ~ 1.8e-4).
+    a pair at +-within_pair_rad / 2 about the centre and, along track, the left one
+    ``stagger_rad`` / 2 ahead and the right one as far behind (ICESat-2 from ~496 km: pairs 3.3
+    km apart, beams 90 m apart across and ~2.5 km along track -> pair_spacing_rad ~ 6.65e-3,
+    within_pair_rad ~ 1.8e-4, stagger_rad ~ 5.0e-3). ``power_ratio``: the left (strong) beam of
+    each pair carries this many times the right (weak) beam's power (ICESat-2: 4); the mean
+    over the beams is the transmitter's per-beam power.
     """
     ps = _checks.positive("pair_spacing_rad", pair_spacing_rad)
     wp = _checks.positive("within_pair_rad", within_pair_rad)
+    st = _checks.non_negative("stagger_rad", stagger_rad)
+    ratio = _checks.positive("power_ratio", power_ratio)
     if wp >= ps:
         raise ValueError("within_pair_rad must be smaller than pair_spacing_rad")
     across = np.array([c + s * wp / 2 for c in (-ps, 0.0, ps) for s in (-1, 1)])
-    return BeamPattern(np.abs(across), np.where(across >= 0, np.pi / 2, -np.pi / 2))
+    along = np.tile([st / 2, -st / 2], 3)
+    # Body direction (tan along, tan across, 1): the off-nadir angle and its azimuth.
+    ta, tc = np.tan(along), np.tan(across)
+    off = np.arctan(np.hypot(ta, tc))
+    return BeamPattern(off, np.arctan2(tc, ta), power_share=np.tile([ratio, 1.0], 3))
 
 
 def conical_scan(off_nadir_rad, scan_rate_rad_s, phase_rad=0.0) -> BeamPattern:
@@ -837,8 +856,28 @@ class ShotGeometry:
     rays: frames.ProjectedRays | None = None
 
 
+def zero_doppler_attitude(attitude, velocity, up) -> Attitude:
+    """``attitude`` with each shot's pitch raised by atan(v_up / v_h): the pitch steering that
+    makes every beam of the body's x-z and y-z planes perpendicular to the velocity (zero
+    closing speed, no Doppler shift), as ICESat-2 points its beams.
+
+    A beam at off-nadir angle theta in those planes, pitched by p, has the direction
+    cos(theta) (cos p down + sin p forward) + sin(theta) right; the body x axis is the horizontal
+    velocity, so v . right = 0 and the closing speed cos(theta) (v_h sin p - v_up cos p)
+    vanishes for tan p = v_up / v_h. velocity, up: (n, 3) in one frame.
+    """
+    v = np.asarray(velocity, float)
+    u = _unit_rows(np.asarray(up, float))
+    v_up = np.sum(v * u, axis=1)
+    v_h = np.linalg.norm(v - v_up[:, None] * u, axis=1)
+    att = attitude if attitude is not None else Attitude()
+    base = np.broadcast_to(_checks.real_array("pitch_rad", att.pitch_rad), v_up.shape)
+    return Attitude(att.roll_rad, base + np.arctan2(v_up, v_h), att.yaw_rad)
+
+
 def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=0.0, rng=None,
-                  target_height_m=None, entry_height_m=None) -> ShotGeometry:
+                  target_height_m=None, entry_height_m=None,
+                  doppler_steering: bool = False) -> ShotGeometry:
     """Platform position, velocity and beam directions for each shot, and scene-frame rays.
 
     path : UavPath, AircraftLines, KeplerOrbit or TleOrbit. t_s : (n,) shot times [s] (may be
@@ -848,7 +887,8 @@ def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=
     ``entry_height_m`` (above the highest terrain; must lie below the platform to have an
     effect), see :func:`frames.rays_projected_from_ecef`. Without it, scene-frame platforms use
     the flat approximation of :func:`frames.rays_projected_local` (error at 20 deg off nadir:
-    1 cm from 1 km, 28 cm from 5 km above ground).
+    1 cm from 1 km, 28 cm from 5 km above ground). ``doppler_steering`` pitches every shot by
+    :func:`zero_doppler_attitude` on top of ``attitude``.
     """
     t = _times("t_s", t_s)
     n, nb = t.shape[0], beams.n_beams if isinstance(beams, BeamPattern) else None
@@ -866,13 +906,16 @@ def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=
                                         np.zeros((0, nb)), np.zeros((0, nb)),
                                         np.zeros((0, nb), dtype=bool))
         return ShotGeometry(t, empty3, empty3.copy(), np.zeros((0, nb, 3)), frame, rays)
-    pos, vel = path.positions(t), path.velocities(t)
+    pos, vel = path.states(t) if hasattr(path, "states") else (path.positions(t),
+                                                                 path.velocities(t))
     if frame == "projected":
         up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), pos.shape)
     else:
         lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
         up = frames.local_up_ecef(lat, lon)
     vu = _unit_rows(vel)
+    if doppler_steering:
+        attitude = zero_doppler_attitude(attitude, vel, up)
     d = beam_directions(vu, up, attitude, beams, t_s=t, jitter_rad_rms=jitter_rad_rms, rng=rng)
     rays = None
     if epsg is not None:

@@ -64,7 +64,26 @@ Doppler (``doppler`` in the scene's effects): f_d = 2 v / lambda from each shot'
 (platform velocity along the beam; the terrain is fixed in ECEF, so for satellites the ECEF
 velocity already holds the Earth's rotation). A shift the record resolves (|f_d| >= 1 / T_ov)
 splits the homodyne line (thesis Appendix D): the SNR takes the link tier's split factor and the
-beat reads f_R + f_d, so the range carries f_d / kappa of error, as a real up-chirp does.
+lines sit at |f_R + f_d| and |f_R - f_d| with equal power: the peak search takes one of those
+inside the processed band (either, with equal chance, when both are), as the rf and baseband
+tiers do through their noise. Such a range is off by f_d / kappa: unless
+``processing.doppler_recovery`` recovers it (rf tier), the return is flagged
+``doppler_displaced`` (``detected = 4``) whenever |f_d| exceeds the chirp's resolution 1 / T_chirp.
+``attitude.doppler_steering`` removes the shift at its source (beams in the body's across-track
+plane perpendicular to the velocity); ``survey.doppler_compensation = "lo_offset"`` shifts each
+beam's LO by its predicted Doppler (``ChunkGeometry.doppler_speed_mps`` is what is left).
+
+Range window (``survey.range_window_m`` = W)
+--------------------------------------------
+As an altimeter's range gate, the reference delay follows each beam's range R_p predicted to the
+scene's mid-height surface (:attr:`survey.ChunkGeometry.range_predicted_m`): returns with a mean
+range in [R_p - W/2, R_p + W/2] beat between the high-pass corner f_hp and f_hp + kappa 2 n W / c,
+which must lie in the processed band (:func:`check_range_window`):
+
+    tau_ref = 2 n (R_p - W / 2) / c - f_hp / kappa
+
+A return outside the window is flagged ``outside_range_window`` (``detected = 3``): the
+instrument does not look there, and its beat would alias or leave the band.
 """
 
 from __future__ import annotations
@@ -81,10 +100,11 @@ from ..target import (
     specular_return_fraction,
 )
 from ..tiers.budget import make_budget, reference_delay_s
-from ..tiers.common import beat_flags, optimal_phase
+from ..tiers.common import beat_flags, doppler_line_hz, optimal_phase
 from ..tiers.link import (
     carrier_fading_factor,
     crb_sigma_f_hz,
+    overlap_duration_s,
     simulate_link,
     static_phase_factor,
 )
@@ -98,6 +118,7 @@ STREAM_BASEBAND = 300     # + batch index: each baseband batch's stream
 STREAM_SUBRAY_SPECKLE = 400  # (key, beam, sub-ray): the sub-rays' speckle fields (baseband, rf)
 STREAM_FADING = 900_000   # carrier-phase fading of the link tier (below STREAM_RF, above the
                           # baseband batches of any practical chunk)
+STREAM_SIDEBAND = 900_001  # which Doppler sideband the link tier's peak search takes
 BASEBAND_BATCH = 256      # shots per baseband call (sorted by range: one range gate per batch)
 
 _RANGE_STEP = 0.01        # relative node spacing in range
@@ -150,7 +171,8 @@ def sub_ray_power_fractions(config, scene, geom):
 
 
 def _transmission(config, scene, geom):
-    """(n, b) round-trip atmospheric x optical x attenuator power transmission."""
+    """(n, b) round-trip atmospheric x optical x attenuator power transmission, times each
+    beam's share of the transmitter power (1 for equal beams)."""
     z_ground = geom.hit_xyz_m[..., 2]
     z_plat = np.broadcast_to(geom.platform_xyh[:, 2:3], z_ground.shape)
     ok = np.isfinite(z_ground)
@@ -159,7 +181,8 @@ def _transmission(config, scene, geom):
     if np.any(ok):
         t1[ok] = scene.one_way_power_transmission(z_ground[ok], z_plat[ok], zen[ok])
     ch = config.channel
-    return t1 ** 2 * ch.optical_transmission ** 2 * float(db_to_ratio(-ch.extra_attenuation_db))
+    return (t1 ** 2 * ch.optical_transmission ** 2 * float(db_to_ratio(-ch.extra_attenuation_db))
+            * geom.beam_power_share[None, :])
 
 
 def _effects(config, scene, geom, seq, exclude=("doppler",)):
@@ -396,11 +419,20 @@ def _interp_table(x_nodes, y_nodes, table, x, y):
     return a * (1 - fx) + c * fx
 
 
-def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool):
+def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool, lag_s: float | None = None):
     """SNR [dB] on (range, attenuation) nodes and T_ov [s] per range node, plus the SNR factor
-    of a resolved Doppler split, from the link tier's closed form."""
+    of a resolved Doppler split, from the link tier's closed form. ``lag_s``: every node's
+    tau - tau_ref (a range window's centre); None: the configuration's reference delay."""
     lw = config.laser.linewidth_hz > 0
     base = _node_config(config, ["phase_noise"] if lw else [])
+
+    def at_range(cfg, r):
+        over = {"channel.distance_m": float(r)}
+        if lag_s is not None:
+            delay = 2.0 * config.channel.group_index * float(r) / SPEED_OF_LIGHT_M_S
+            over["system.reference_delay_s"] = delay - lag_s
+        return config_with(cfg, over)
+
     n_r = 1 if r_hi <= r_lo else int(min(33, np.ceil(np.log(r_hi / r_lo) / _RANGE_STEP) + 1))
     r_nodes = np.geomspace(r_lo, r_hi, n_r) if n_r > 1 else np.array([r_lo])
     a0 = np.floor(a_lo / _ATT_STEP_DB) * _ATT_STEP_DB
@@ -411,7 +443,7 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool):
     t_ov = np.empty(n_r)
     rng = np.random.default_rng(0)  # the nodes' own draws are not used (SNR is deterministic)
     for i, r in enumerate(r_nodes):  # tens of closed-form evaluations per chunk, not per shot
-        cfg_r = config_with(base, {"channel.distance_m": float(r)})
+        cfg_r = at_range(base, r)
         for j, a in enumerate(a_nodes):
             out = simulate_link(config_with(cfg_r, {"channel.extra_attenuation_db": float(a)}),
                                 rng, batch=1)
@@ -423,9 +455,9 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool):
         # link tier's own (it depends on the carrier-phase convention), read at one node.
         r = float(r_nodes[0])
         f_big = 20.0 / t_ov[0]
-        dop = config_with(_node_config(config, (["phase_noise"] if lw else []) + ["doppler"]),
-                          {"channel.distance_m": r,
-                           "effects.doppler.radial_velocity_mps": f_big * config.laser.wavelength_m / 2,
+        dop = config_with(at_range(_node_config(config, (["phase_noise"] if lw else [])
+                                                + ["doppler"]), r),
+                          {"effects.doppler.radial_velocity_mps": f_big * config.laser.wavelength_m / 2,
                            "channel.extra_attenuation_db": float(a_nodes[0])})
         on = simulate_link(dop, rng, batch=1)["SNR"][0]
         split = float(db_to_ratio(on - snr_db[0, 0]))
@@ -449,10 +481,61 @@ def _received(config, scene, geom, seq, exclude_effects=("doppler",)):
     return bud.ptx_w * tot * scale, mean, std, frac * scale[..., None], phase
 
 
+def check_range_window(config, source: str) -> None:
+    """ConfigError unless ``survey.range_window_m``'s beats fit in the processed band."""
+    from ..config.loader import ConfigError
+    from ..tiers.common import peak_search_max_hz
+
+    w = config.survey.range_window_m
+    if w is None:
+        return
+    bud = make_budget(config)
+    span = bud.rate_hz_per_s * 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S
+    top = peak_search_max_hz(config, bud)
+    room = top - config.processing.highpass_hz
+    lag_span = 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S
+    if lag_span >= bud.train.rise_s:
+        raise ConfigError(f"{source}: survey.range_window_m = {w:g} m is longer than the chirp: "
+                          f"its far edge lags the reference by {lag_span * 1e6:.3g} us, beyond "
+                          f"the {bud.train.rise_s * 1e6:.3g} us ramp (no overlap, and ranges "
+                          "would alias by c T / 2)")
+    if span > room:
+        w_max = room / bud.rate_hz_per_s * SPEED_OF_LIGHT_M_S / (2.0 * config.channel.group_index)
+        raise ConfigError(f"{source}: survey.range_window_m = {w:g} m needs beats from "
+                          f"{config.processing.highpass_hz / 1e6:g} to "
+                          f"{(config.processing.highpass_hz + span) / 1e6:.3g} MHz, above the "
+                          f"processed band's top {top / 1e6:.3g} MHz: at most {w_max:.0f} m")
+
+
+def window_reference_delay_s(config, geom, r_mean_m):
+    """Per shot-beam (reference delay [s], outside-the-window mask) of ``survey.range_window_m``,
+    or (None, all False) when the survey has no range window (module docstring)."""
+    w = config.survey.range_window_m
+    outside = np.zeros(np.shape(r_mean_m), bool)
+    if w is None:
+        return None, outside
+    n_grp = config.channel.group_index
+    near = geom.range_predicted_m - 0.5 * w
+    rate = make_budget(config).rate_hz_per_s
+    ref = 2.0 * n_grp * np.where(np.isfinite(near), near, 0.0) / SPEED_OF_LIGHT_M_S \
+        - config.processing.highpass_hz / rate
+    with np.errstate(invalid="ignore"):
+        outside = ~((r_mean_m >= near) & (r_mean_m <= near + w))
+    return ref, outside & np.isfinite(r_mean_m)
+
+
+def doppler_displaced(config, scene, geom, rate_hz_per_s: float, rise_s: float) -> np.ndarray:
+    """(n, b) shots whose Doppler shift the record resolves (|f_d| >= 1 / T_chirp: the line moves
+    by more than the range resolution) with nothing to recover it (module docstring)."""
+    if config.processing.doppler_recovery != "none":
+        return np.zeros(geom.closing_speed_mps.shape, bool)
+    return np.abs(doppler_hz(config, scene, geom)) >= 1.0 / rise_s
+
+
 def doppler_hz(config, scene, geom):
     if "doppler" not in scene.effects:
         return np.zeros_like(geom.closing_speed_mps)
-    return doppler_shift_hz(geom.closing_speed_mps, config.laser.wavelength_m)
+    return doppler_shift_hz(geom.doppler_speed_mps, config.laser.wavelength_m)
 
 
 def measure_link(config, scene, geom, seq) -> dict:
@@ -469,7 +552,9 @@ def measure_link(config, scene, geom, seq) -> dict:
     range_meas = np.full(psig.shape, np.nan)
     width = np.full(psig.shape, np.nan)
     delay = 2.0 * n_grp * np.where(ok, r_mean, 1.0) / SPEED_OF_LIGHT_M_S
-    ref = reference_delay_s(config, delay, rate)
+    ref, outside = window_reference_delay_s(config, geom, r_mean)
+    if ref is None:
+        ref = reference_delay_s(config, delay, rate)
     lag = np.mod(delay - ref, bud.train.period_s)
     f_b = rate * lag
     no_overlap, out_of_band = beat_flags(config, bud, lag, f_b)
@@ -480,11 +565,20 @@ def measure_link(config, scene, geom, seq) -> dict:
         cp = config.channel.carrier_phase
         node_cfg = config if cp == "random" else config_with(config, {
             "channel.carrier_phase": "optimal"})
+        lag_c = None if config.survey.range_window_m is None else (
+            config.processing.highpass_hz / rate
+            + n_grp * config.survey.range_window_m / SPEED_OF_LIGHT_M_S)
         r_nodes, a_nodes, table, t_nodes, split = _link_table(
             node_cfg, float(r_mean[ok].min()), float(r_mean[ok].max()), float(att.min()),
-            float(att.max()), "doppler" in scene.effects)
+            float(att.max()), "doppler" in scene.effects, lag_c)
         snr_ok = db_to_ratio(_interp_table(r_nodes, a_nodes, table, r_mean[ok], att))
         t_ov = np.interp(r_mean[ok], r_nodes, t_nodes)
+        if lag_c is not None:
+            # Nodes at the window's centre lag; each shot's own lag sets its overlap T_ov, and
+            # the tone's amplitude scales with it (SNR with its square).
+            t_shot = _overlap_at(config, bud, lag[ok])
+            snr_ok = snr_ok * (t_shot / t_ov) ** 2
+            t_ov = t_shot
         f_d = doppler_hz(config, scene, geom)[ok]
         resolved = np.abs(f_d) >= 1.0 / t_ov
         # Carrier fading about the nodes' mean phase power, or each shot's static phase (with the
@@ -502,14 +596,25 @@ def measure_link(config, scene, geom, seq) -> dict:
         snr_ok = snr_ok / g
         t_eff = t_ov / g
         noise = stream(seq, STREAM_NOISE).standard_normal(snr_ok.shape)
-        fm = (f_b[ok] + np.where(resolved, f_d, 0.0)
-              + crb_sigma_f_hz(snr_ok, config.processing.rbw_hz, t_eff) * noise)
+        line = doppler_line_hz(config, bud, f_b[ok], np.where(resolved, f_d, 0.0),
+                               stream(seq, STREAM_SIDEBAND))
+        fm = line + crb_sigma_f_hz(snr_ok, config.processing.rbw_hz, t_eff) * noise
         snr[ok] = snr_ok
         width[ok] = 0.886 / t_eff  # 3 dB width of a rectangular-envelope tone of duration t_eff
         f_meas[ok] = fm
         range_meas[ok] = SPEED_OF_LIGHT_M_S * (fm / rate + ref[ok]) / (2.0 * n_grp)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band)
+                   out_of_band, outside,
+                   doppler_displaced(config, scene, geom, rate, bud.train.rise_s))
+
+
+def _overlap_at(config, bud, lag_s) -> np.ndarray:
+    """The link tier's chirp overlap T_ov [s] at each lag, interpolated from 129 lags spanning
+    them (T_ov is piecewise linear in the lag)."""
+    lo, hi = float(np.min(lag_s)), float(np.max(lag_s))
+    grid = np.linspace(lo, hi, 129) if hi > lo else np.array([lo])
+    t_grid = overlap_duration_s(config, bud, grid)
+    return np.interp(lag_s, grid, t_grid) if grid.size > 1 else np.full(np.shape(lag_s), t_grid[0])
 
 
 def _static_phase(config, bud, delay_s, ref_delay_s) -> np.ndarray:
@@ -524,10 +629,16 @@ def _static_phase(config, bud, delay_s, ref_delay_s) -> np.ndarray:
 
 
 def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-            out_of_band) -> dict:
+            out_of_band, outside_window, displaced) -> dict:
+    """The survey's per-shot fields; ``detected`` says why a return does not count: 2 no
+    surface; 3 outside the range window (``survey.range_window_m``, or without one the ranges
+    whose beat lies in the processed band with the chirps overlapping); 4 Doppler-displaced;
+    0 below the detection threshold."""
     thr = float(db_to_ratio(config.survey.detection_threshold_db))
     hit = np.isfinite(geom.range_true_m)
-    detected = np.where(hit, np.where(ok & (snr >= thr) & ~no_overlap & ~out_of_band, 1, 0), 2)
+    outside = outside_window | (ok & (no_overlap | out_of_band))
+    seen = np.where(ok & (snr >= thr), 1, 0)
+    detected = np.where(~hit, 2, np.where(outside, 3, np.where(displaced & (seen == 1), 4, seen)))
     det = detected == 1
     with np.errstate(divide="ignore"):
         snr_db = np.where(ok & (snr > 0), 10.0 * np.log10(np.where(snr > 0, snr, 1.0)), np.nan)
@@ -586,8 +697,11 @@ def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int):
     n_grp = config.channel.group_index
     r0 = float(r_mean[i, j])
     over = {"channel.distance_m": r0}
+    ref, _ = window_reference_delay_s(config, geom, r_mean)
+    if ref is not None:
+        over["system.reference_delay_s"] = float(ref[i, j])
     if "doppler" in base.effects.enabled:
-        over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
+        over["effects.doppler.radial_velocity_mps"] = float(geom.doppler_speed_mps[i, j])
     cfg0 = config_with(base, over)
     w = frac[i, j]
     keep = w > 0
@@ -636,7 +750,8 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
         if progress is not None:
             progress(1)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band)
+                   out_of_band, window_reference_delay_s(config, geom, returns[1])[1],
+                   doppler_displaced(config, scene, geom, bud.rate_hz_per_s, bud.train.rise_s))
 
 
 def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
@@ -672,13 +787,18 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
     n_grp = config.channel.group_index
     propagation = config.channel.carrier_phase == "propagation"
     f_d_all = doppler_hz(config, scene, geom)
+    window_ref, outside = window_reference_delay_s(config, geom, r_mean)
     flat = np.flatnonzero(ok.ravel())
-    flat = flat[np.argsort(r_mean.ravel()[flat], kind="stable")]
+    order_by = r_mean if window_ref is None else window_ref
+    flat = flat[np.argsort(order_by.ravel()[flat], kind="stable")]
     for batch_index, start in enumerate(range(0, flat.size, BASEBAND_BATCH)):
         idx = flat[start:start + BASEBAND_BATCH]
         ii, jj = np.divmod(idx, b)
         r0 = float(np.median(r_mean[ii, jj]))
-        cfg = config_with(base, {"channel.distance_m": r0, "channel.extra_attenuation_db": 0.0})
+        over = {"channel.distance_m": r0, "channel.extra_attenuation_db": 0.0}
+        if window_ref is not None:   # one range gate per batch of neighbouring gates
+            over["system.reference_delay_s"] = float(np.median(window_ref[ii, jj]))
+        cfg = config_with(base, over)
         bud_batch = make_budget(cfg)
         rng = stream(seq, STREAM_BASEBAND + batch_index)
         w = frac[ii, jj]                                                  # (m, k)
@@ -708,4 +828,5 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         if progress is not None:
             progress(idx.size)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band)
+                   out_of_band, outside,
+                   doppler_displaced(config, scene, geom, bud.rate_hz_per_s, bud.train.rise_s))

@@ -184,6 +184,7 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
         except ValueError as exc:
             raise ConfigError(f"{src}: survey.tier = 'baseband': {exc}") from None
     plan = plan_survey(config, scene, src)
+    measure.check_range_window(config, src)
     check_crosses_scene(plan, scene, config, src)
     return config, scene, plan
 
@@ -533,6 +534,7 @@ def summarise(ds, path, elapsed_s: float) -> dict:
         "beams": int(ds.sizes["trajectory"]), "shots": n_obs,
         "returns": int(det.size), "detected": int(np.sum(det == 1)),
         "below_threshold": int(np.sum(det == 0)), "no_surface": int(np.sum(det == 2)),
+        "outside_range_window": int(np.sum(det == 3)), "doppler_displaced": int(np.sum(det == 4)),
         "median_snr_db": float(np.median(snr)) if snr.size else float("nan"),
         "range_error_mean_m": float(np.mean(err)) if err.size else float("nan"),
         "range_error_std_m": float(np.std(err)) if err.size else float("nan"),
@@ -618,7 +620,7 @@ class _SummaryPass:
     def __init__(self, n_beams: int, budget_bytes: int):
         self.n_beams, self.budget_bytes = n_beams, budget_bytes
         self.n_obs = 0
-        self.counts = np.zeros(3, dtype=np.int64)
+        self.counts = np.zeros(5, dtype=np.int64)
         self.s1 = self.s2 = 0.0
         self.kept: list | None = []
 
@@ -633,7 +635,7 @@ class _SummaryPass:
     def add(self, det, snr, err) -> None:
         det, snr, err = self.detected_columns(det, snr, err)
         self.n_obs += det.size // max(self.n_beams, 1)
-        self.counts += np.bincount(det.astype(np.int64), minlength=3)[:3]
+        self.counts += np.bincount(det.astype(np.int64), minlength=5)[:5]
         self.s1 += float(np.sum(err))
         self.s2 += float(np.sum(err * err))
         if self.kept is not None:
@@ -706,6 +708,7 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
         "output": str(path), "tier": tier, "seed": int(seed), "beams": int(n_beams),
         "shots": int(n_obs), "returns": int(n_obs * n_beams), "detected": n_det,
         "below_threshold": int(counts[0]), "no_surface": int(counts[2]),
+        "outside_range_window": int(counts[3]), "doppler_displaced": int(counts[4]),
         "median_snr_db": float(median), "range_error_mean_m": float(mean),
         "range_error_std_m": float(std), "range_error_rms_m": float(rms),
         "range_error_p95_abs_m": float(p95), "elapsed_s": elapsed_s,
@@ -718,7 +721,10 @@ def format_summary(s: dict) -> str:
         f"chirplidar run: {s['shots']} shots x {s['beams']} beam(s), tier {s['tier']}, "
         f"seed {s['seed']}, {s['elapsed_s']:.1f} s",
         f"  detected         {s['detected']} of {s['returns']} ({pct:.1f} %); "
-        f"{s['below_threshold']} below threshold, {s['no_surface']} with no surface in the beam",
+        f"{s['below_threshold']} below threshold, {s['no_surface']} with no surface in the beam"
+        + "".join(f", {s[k]} {text}" for k, text in (
+            ("outside_range_window", "outside the range window"),
+            ("doppler_displaced", "displaced by an uncompensated Doppler shift")) if s.get(k)),
         f"  median SNR       {s['median_snr_db']:.1f} dB (detected shots)",
         f"  range error      mean {s['range_error_mean_m'] * 100:.2f} cm, std "
         f"{s['range_error_std_m'] * 100:.2f} cm, RMS {s['range_error_rms_m'] * 100:.2f} cm, "

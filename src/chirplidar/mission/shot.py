@@ -217,7 +217,7 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
         att = float(measure.reference_attenuation_db(config, r0, psig[i, j] / ptx_w))
         over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
         if "doppler" in base.effects.enabled:
-            over["effects.doppler.radial_velocity_mps"] = float(geom.closing_speed_mps[i, j])
+            over["effects.doppler.radial_velocity_mps"] = float(geom.doppler_speed_mps[i, j])
         cfg, echoes = config_with(base, over), None
     code = int(geom.material[i, j])
     xyz = geom.hit_xyz_m[i, j]

@@ -116,6 +116,9 @@ class SurveyPlan:
     epsg: int
     target_height_m: float     # chord ends of the scene-frame rays (below / above the terrain)
     entry_height_m: float
+    window_height_m: float     # the range window's prediction surface: the scene's mid-height
+    doppler_steering: bool = False
+    doppler_compensation: str = "none"
 
     @property
     def n_shots(self) -> int:
@@ -134,7 +137,8 @@ def _beams(b) -> BeamPattern:
         return nadir_beam()
     if b.pattern == "paired":
         return paired_beams_across_track(np.radians(b.pair_spacing_deg),
-                                         np.radians(b.within_pair_deg))
+                                         np.radians(b.within_pair_deg),
+                                         np.radians(b.stagger_deg), b.pair_power_ratio)
     if b.pattern == "conical":
         return conical_scan(np.radians(b.cone_half_angle_deg), np.radians(b.scan_rate_deg_s))
     return BeamPattern(np.radians(b.off_nadir_deg), np.radians(b.azimuth_deg))
@@ -226,7 +230,9 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
                       attitude=Attitude(np.radians(att.roll_deg), np.radians(att.pitch_deg),
                                         np.radians(att.yaw_deg)),
                       jitter_rad_rms=att.jitter_rad_rms, t_s=t, chunk_shots=sv.chunk_shots,
-                      epsg=scene.epsg, target_height_m=z0 - margin, entry_height_m=z1 + margin)
+                      epsg=scene.epsg, target_height_m=z0 - margin, entry_height_m=z1 + margin,
+                      window_height_m=0.5 * (z0 + z1), doppler_steering=att.doppler_steering,
+                      doppler_compensation=sv.doppler_compensation)
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -240,8 +246,11 @@ class ChunkGeometry:
     off_nadir_rad: np.ndarray    # (n, b)
     azimuth_rad: np.ndarray      # (n, b) clockwise from true north
     closing_speed_mps: np.ndarray  # (n, b) platform velocity along the beam (approaching > 0)
+    doppler_speed_mps: np.ndarray  # (n, b) the part of it the receiver sees as a Doppler shift
     rays: frames.ProjectedRays   # (n, b)
     range_true_m: np.ndarray     # (n, b) centre ray
+    range_predicted_m: np.ndarray  # (n, b) centre ray to the plan's window_height_m surface
+    beam_power_share: np.ndarray   # (b,) each beam's share of the transmitter power (mean 1)
     hit_xyz_m: np.ndarray        # (n, b, 3) centre ray hit in the scene frame
     incidence_rad: np.ndarray    # (n, b)
     material: np.ndarray         # (n, b) int codes, -1 on a miss
@@ -279,7 +288,8 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
     jit = stream(seq, STREAM_JITTER) if plan.jitter_rad_rms > 0 else None
     sg = shot_geometry(plan.path, t_s, plan.beams, plan.attitude, epsg=plan.epsg,
                        jitter_rad_rms=plan.jitter_rad_rms, rng=jit,
-                       target_height_m=plan.target_height_m, entry_height_m=plan.entry_height_m)
+                       target_height_m=plan.target_height_m, entry_height_m=plan.entry_height_m,
+                       doppler_steering=plan.doppler_steering)
     rays = sg.rays
     if sg.frame == "ecef":
         platform = frames.ecef_to_projected(sg.position_m, plan.epsg) if n else np.zeros((0, 3))
@@ -290,12 +300,24 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
     else:
         off = az = np.zeros((0, b))
     closing = np.einsum("nj,nbj->nb", sg.velocity_mps, sg.direction)
+    seen = closing
+    if plan.doppler_compensation == "lo_offset":
+        # Each beam's LO shifted by the Doppler of its nominal (jitter-free) pointing.
+        nominal = sg.direction if plan.jitter_rad_rms == 0 else shot_geometry(
+            plan.path, t_s, plan.beams, plan.attitude,
+            doppler_steering=plan.doppler_steering).direction
+        seen = closing - np.einsum("nj,nbj->nb", sg.velocity_mps, nominal)
     o = rays.origin_m.reshape(-1, 3)
     d = rays.direction.reshape(-1, 3)
     centre = cast_rays(scene.terrain, o, d)
     valid = rays.valid.reshape(-1)
     t_hit = np.where(valid & centre.hit, centre.ranges_m, np.inf)
     rng_true = rays.range_m(t_hit.reshape(n, b))
+    # The range window's prediction: where the chord reaches the window surface's height (the
+    # chord's height is linear in its parameter between its two end heights).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_pred = (plan.window_height_m - rays.origin_m[..., 2]) / rays.direction[..., 2]
+    rng_pred = rays.range_m(np.where(np.isfinite(t_pred), t_pred, np.inf))
     hit = np.isfinite(rng_true)
     mat = np.where(hit, centre.material_codes.reshape(n, b), -1)
     inc = np.where(hit, centre.incidence_rad.reshape(n, b), np.inf)
@@ -319,7 +341,8 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
     sub_r = np.where(np.isfinite(t_sub), sub_r, np.inf)
     return ChunkGeometry(
         t_s=t_s, track=track_index(plan.path, t_s), platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
-        closing_speed_mps=closing, rays=rays, range_true_m=rng_true,
+        closing_speed_mps=closing, doppler_speed_mps=seen, rays=rays, range_true_m=rng_true, range_predicted_m=rng_pred,
+        beam_power_share=plan.beams.power_share,
         hit_xyz_m=np.where(hit[..., None], centre.points_m.reshape(n, b, 3), np.nan),
         incidence_rad=inc, material=mat, beam_radius_m=w, sub_range_m=sub_r,
         sub_weight=sw.reshape(n, b, k), sub_incidence_rad=sub.incidence_rad.reshape(n, b, k),

@@ -50,6 +50,7 @@ from scipy.special import jv
 
 from .._threads import single_threaded_blas
 from ..channel.effects import ShotReturns, channel_returns, effect_rng
+from ..doppler import doppler_shift_hz
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import balanced_noise, current_noise, current_noise_variance
@@ -85,9 +86,18 @@ def band_top_hz(config, bud) -> float:
 
 def baseband_grid(config, bud) -> tuple[float, int]:
     """(sample rate in Hz, samples N) of the baseband record: ``simulation.baseband_rate_hz`` or
-    twice the band top, raised to a fast FFT length over the record duration."""
+    twice the band top, raised to a fast FFT length over the record duration. A Doppler shift
+    f_d (the ``doppler`` effect) moves lines up to f_d above the band top: the grid reaches them,
+    so they do not alias into the band (the rf tier's full rate never aliases them)."""
     sim = config.simulation
-    rate = sim.baseband_rate_hz if sim.baseband_rate_hz is not None else 2.0 * band_top_hz(config, bud)
+    if sim.baseband_rate_hz is not None:
+        rate = sim.baseband_rate_hz
+    else:
+        f_d = 0.0
+        if "doppler" in config.effects.enabled:
+            f_d = abs(doppler_shift_hz(config.effects.doppler.radial_velocity_mps,
+                                       config.laser.wavelength_m))
+        rate = 2.0 * (band_top_hz(config, bud) + f_d)
     n = scipy.fft.next_fast_len(int(math.ceil(sim.duration_s * rate - 1e-9)), real=True)
     return n / sim.duration_s, n
 

@@ -56,6 +56,22 @@ def peak_search_max_hz(config, bud) -> float:
     return config.simulation.sample_rate_hz / 2
 
 
+def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
+    """The beat line the peak search finds when a resolved Doppler shift f_d splits the beat f_R
+    into |f_R + f_d| and |f_R - f_d| of equal power (Appendix D): one inside the processed band,
+    either with equal chance when both are (the rf and baseband tiers' noise decides), the upper
+    one when neither is (the shot is then flagged out of band). f_d = 0: the beat itself."""
+    f_b = np.asarray(f_beat_hz, float)
+    f_d = np.broadcast_to(np.asarray(f_doppler_hz, float), f_b.shape)
+    if not np.any(f_d != 0):
+        return f_b   # no draw: outputs without Doppler keep their random streams
+    up, down = np.abs(f_b + f_d), np.abs(f_b - f_d)
+    lo, hi = config.processing.highpass_hz, peak_search_max_hz(config, bud)
+    up_in, down_in = (lo <= up) & (up <= hi), (lo <= down) & (down <= hi)
+    coin = rng.random(f_b.shape) < 0.5
+    return np.where(down_in & (~up_in | coin), down, up)
+
+
 def detection_flags(config, bud, returns=None) -> list[str]:
     flags = []
     if bud.psig_w <= 0 or (returns is not None and not np.any(returns.power_factor > 0)):

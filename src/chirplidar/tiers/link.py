@@ -30,7 +30,7 @@ from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
 from ..channel.effects import channel_returns
-from .common import assemble_outputs, detection_flags, optimal_phase
+from .common import assemble_outputs, detection_flags, doppler_line_hz, optimal_phase
 
 _GRID = 8192  # points over the record for slowly varying envelopes
 
@@ -138,6 +138,22 @@ def static_phase_factor(config, psi_rad) -> np.ndarray:
     return (w1 * p1 + w2 * (1.0 - p1)) / w1
 
 
+def overlap_duration_s(config, bud, lag_s, *, ref_delay_s: float = 0.0) -> np.ndarray:
+    """Time [s] within the record where the reference and signal chirps overlap (envelope product
+    above 1/4, at least one grid step) at each lag ``lag_s`` = tau - tau_ref (array), the
+    reference delayed by ``ref_delay_s``: the tone's duration T_ov."""
+    sim, train = config.simulation, bud.train
+    t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
+    gate = train.record_gate(t, sim.duration_s)
+    w_lo = train.envelope(np.mod(t - ref_delay_s, train.period_s)) * gate
+    lags = np.atleast_1d(np.asarray(lag_s, float))
+    out = np.empty(lags.shape)
+    for k, lag in enumerate(lags.ravel()):   # a few lags per call (the table's nodes)
+        w_sig = train.envelope(np.mod(t - ref_delay_s - lag, train.period_s))
+        out.flat[k] = max(float(np.mean(w_lo * w_sig > 0.25)), 1.0 / _GRID) * sim.duration_s
+    return out.reshape(np.shape(lag_s))
+
+
 def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                   keep_spectrum: bool = False) -> dict:
     bud = make_budget(config)
@@ -179,7 +195,7 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     f_b = bud.f_beat_hz
     # Overlap time of the two chirps: sets the resolution and the frequency scatter below.
     # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
-    t_ov = max(float(np.mean(w_lo * w_sig * gate > 0.25)), 1.0 / _GRID) * sim.duration_s
+    t_ov = float(overlap_duration_s(config, bud, bud.lag_s, ref_delay_s=bud.ref_delay_s))
     # Doppler (Appendix D): a shift the record resolves splits the real beat into lines at
     # f_R +- f_d of a quarter of the optimum-phase power each, whatever the carrier phase.
     f_d = np.abs(returns.doppler_hz)
@@ -251,7 +267,9 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
     sigma_f = crb_sigma_f_hz(snr, proc.rbw_hz, t_ov)
     extra = {**extra, "t_overlap_s": np.full(batch, t_ov)}
-    f_meas = f_b + np.where(split, f_d, 0.0) + sigma_f * rng.standard_normal(batch)
+    noise_draw = rng.standard_normal(batch)
+    f_meas = doppler_line_hz(config, bud, np.full(batch, f_b), np.where(split, f_d, 0.0),
+                             rng) + sigma_f * noise_draw
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
     result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.broadcast_to(tone * out_scale, (batch,)),
                         noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
