@@ -38,6 +38,7 @@ bench: install
 	$(BIN)/chirplidar bench --what raycast
 	$(BIN)/chirplidar bench --what tiers
 	$(BIN)/chirplidar bench --what scale --repeats 21
+	$(BIN)/chirplidar bench --what campaign
 	$(BIN)/chirplidar bench --what accuracy --out outputs
 	$(BIN)/chirplidar bench --what coverage
 

@@ -195,6 +195,29 @@ def test_crossing_between_files_counts_their_epochs(tmp_path):
     assert cov.grid["tracks"].values.max() == 2                     # two files: two tracks
 
 
+def test_revisits_three_passes_over_the_same_line(tmp_path):
+    """The same 1 km line flown at t = 0, 3 days and 10 days (three files, epochs a day apart
+    and shifted delta_times): every cell on it is seen by 3 tracks; intervals 3 and 7 days, so
+    the median revisit is 5 days (closed form); cells off the line have none (NaN)."""
+    day = 86400.0
+    files = []
+    for k, (epoch, t0) in enumerate((("2026-07-01T00:00:00Z", 0.0),
+                                     ("2026-07-02T00:00:00Z", 2 * day),
+                                     ("2026-07-03T00:00:00Z", 8 * day))):
+        files.append(_write(tmp_path / f"pass{k}.nc", _cat(_line(t0, -500, 0, 500, 0, 10.0, 10.0,
+                                                                 100.0, 0)), epoch=epoch))
+    cov = compute_coverage(files, cell_m=50.0, bounds=(X0 - 500, Y0 - 500, X0 + 500, Y0 + 500))
+    on_line = cov.grid["detected_tracks"].values == 3
+    assert on_line.sum() == 20                                   # the row of cells at y = 0
+    rev = cov.grid["revisit_median_s"].values
+    assert np.allclose(rev[on_line], 5 * day, atol=100.0)        # within one line's duration
+    assert np.all(np.isnan(rev[~on_line]))
+    assert cov.summary["cells_revisited"] == 20
+    assert cov.summary["median_revisit_s"] == pytest.approx(5 * day, abs=100.0)
+    # the flight time excludes the pauses between passes: 3 x 100 s of shot clock (closed form)
+    assert cov.summary["flight_time_s"] == pytest.approx(3 * 100.0, abs=0.5)
+
+
 def test_demo_cells_against_histogram2d(tmp_path):
     """The demo survey (missions/greenland_uav.toml, as make demo flies it): cell counts over
     the survey bounds equal an independent count of the file's footprints (numpy.histogram2d),

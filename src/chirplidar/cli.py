@@ -410,7 +410,18 @@ def format_coverage_summary(s: dict) -> str:
         f"  crossovers       {s['crossovers']}"
         + (f", RMS height residual {m(s['crossover_rms_m'])}" if s["crossovers"] else ""),
     ]
+    if s["cells_revisited"]:
+        lines.append(f"  revisits         {s['cells_revisited']} cells seen by two or more "
+                     f"tracks, median interval {_duration(s['median_revisit_s'])}")
     return "\n".join(lines)
+
+
+def _duration(seconds: float) -> str:
+    """Seconds as s, min, h or days, whichever reads best."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.0f} s"
 
 
 def cmd_view(args) -> int:
@@ -565,6 +576,21 @@ def cmd_bench(args) -> int:
             print(_dump_json({k: res[k] for k in ("serial_s", "workers_2_s", "speedup")}))
         else:
             print(format_scale(res))
+        return 0
+    if args.what == "campaign":
+        from .mission.scale_bench import bench_campaign, format_campaign
+
+        say = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+        try:
+            res = bench_campaign(args.mission, args.set or [], workers=args.workers,
+                                 progress=say)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if args.json:
+            print(_dump_json({k: _json_number(res[k]) for k in ("days", "passes", "shots",
+                                                              "seconds", "shots_per_s")}))
+        else:
+            print(format_campaign(res))
         return 0
     if args.what == "coverage":
         from .analysis.coverage_bench import bench_coverage, format_coverage_bench
@@ -885,14 +911,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
     p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
-                                      "coverage"),
+                                      "coverage", "campaign"),
                    default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
                         "and off; raycast: our ray casting against raw embree; tiers: seconds per "
                         "shot of the rf, baseband and link tiers; accuracy: the accuracy-versus-"
                         "time study; scale: the demo mission serially and on 2 Dask workers; "
                         "coverage: chirplidar coverage of generated 10 M and 20 M shot files "
-                        "(--shots sets the smaller)")
+                        "(--shots sets the smaller); campaign: the 91-day satellite campaign "
+                        "(missions/icesat2_campaign.toml unless --mission) on --workers")
+    p.add_argument("--workers", type=int, default=2,
+                   help="campaign: Dask workers (1: serially; default 2)")
     p.add_argument("--triangles", type=int, default=1_000_000,
                    help="raycast: terrain triangles (default 1,000,000)")
     p.add_argument("--rays", type=int, default=200_000, help="raycast: rays per timing")
@@ -916,7 +945,8 @@ def build_parser() -> argparse.ArgumentParser:
                         '(raycast), {"rf_shot_s", "baseband_shot_s", "link_shot_s", '
                         '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
                         '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
-                        '"peak_memory_mb", ...} (coverage) or the study rows (accuracy)')
+                        '"peak_memory_mb", ...} (coverage), {"days", "passes", "shots", "seconds", '
+                '"shots_per_s"} (campaign) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("passes", help="which satellite passes cross a region in a time "

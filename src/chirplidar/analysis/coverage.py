@@ -92,6 +92,7 @@ SNR_BIN_CHOICES_DB = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)   # the finest whose h
 SNR_HISTOGRAM_ENTRIES = 1 << 24  # cells x bins at most (64 MB of counts)
 GAP_PIXELS_PER_CELL = 20       # detection representatives: pixels of cell_m / 20
 GAP_TOLERANCE_PER_CELL = 20    # largest gap: branch and bound to within C / 20
+FLIGHT_PAUSE_S = 60.0          # a longer step of the shot clock is a pause (between passes)
 PLATFORM_STRIDE = 8            # flight length: chords over 8 shots (a turn of radius r at chord
                                # length s reads s^2 / (24 r^2) short: 1e-5 for 1.6 m, r = 100 m)
 
@@ -100,7 +101,8 @@ SUMMARY_KEYS = ("cells_in_region", "cells_covered", "fraction_covered", "largest
                 "median_detections_per_cell", "median_height_precision_m",
                 "median_height_precision_predicted_m", "along_track_spacing_m",
                 "across_track_spacing_m", "track_length_m", "flight_time_s", "crossovers",
-                "crossover_rms_m", "shots", "detected_shots", "footprints_on_cell_edges",
+                "crossover_rms_m", "cells_revisited", "median_revisit_s", "shots",
+                "detected_shots", "footprints_on_cell_edges",
                 "cell_m", "min_detections",
                 "map_scale_factor", "region", "files")
 
@@ -131,6 +133,12 @@ class _File:
     epoch: _dt.datetime | None    # mission epoch: delta_time = 0
 
     _cache: dict = field(default_factory=dict)   # HDF5 chunk index -> window variables
+
+    @property
+    def epoch_s(self) -> float:
+        """The mission epoch as Unix seconds (0 when the file has none): absolute times for
+        comparing files."""
+        return self.epoch.timestamp() if self.epoch is not None else 0.0
 
     def read(self, name: str, sl) -> np.ndarray:
         with NETCDF_LOCK:
@@ -542,7 +550,9 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
     n_bins = int(round((SNR_RANGE_DB[1] - SNR_RANGE_DB[0]) / snr_w)) + 2   # under, overflow
     snr_hist = np.zeros(n_cells * n_bins, np.int32)
     cell_tracks = _KeySet()
+    detected_tracks = _KeySet()          # (cell, track) pairs with a detection: revisits
     track_ids: dict = {}
+    track_start: dict = {}               # track id -> its first shot's time [s, Unix]
     reps = _Representatives(x0, y0, cell_m / GAP_PIXELS_PER_CELL)
     tracks = TrackBuilder(cell_m / TRACK_STEP_PER_CELL)
     flight_time = track_length = 0.0
@@ -557,7 +567,7 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
                    leave=False)
     try:
         for f in files:
-            last_platform = None
+            last_platform = last_clock = None
             tracks.new_file(f.index, f.n_beams)
             for o0, v in _blocks(f, _BLOCK_VARIABLES):
                 x, y = v["x"], v["y"]
@@ -616,6 +626,19 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
                 keep = np.ones(key.size, bool)
                 keep[1:] = key[1:] != key[:-1]
                 cell_tracks.add(np.unique(key[keep]))
+                detected_tracks.add(np.unique(key[d_in]))
+                # when each track was flown: its first shot (beam 0 carries the shot clock)
+                clock = f.read("delta_time", (0, np.s_[o0:o0 + m]))
+                first = np.ones(m, bool)
+                first[1:] = tid[0, 1:] != tid[0, :-1]
+                for k, t in zip(tid[0, first].tolist(), (clock[first] + f.epoch_s).tolist()):
+                    if t < track_start.get(k, np.inf):
+                        track_start[k] = t
+                # flight time: the shot clock's steps, a pause (between a campaign's passes)
+                # excluded
+                steps = np.diff(clock if last_clock is None else np.append(last_clock, clock))
+                flight_time += float(np.sum(steps[steps <= FLIGHT_PAUSE_S]))
+                last_clock = clock[-1]
                 # detection representatives (every detection, inside the grid or not)
                 reps.add(x[det], y[det])
                 # thinned tracks and along-track spacings
@@ -623,28 +646,27 @@ def _accumulate(files, x0, y0, cell_m, nx, ny, progress) -> dict:
                 # flight length: the platform's ground track (beam 0) through every
                 # PLATFORM_STRIDE-th shot and the last
                 if "platform_x" in v:
-                    px = v["platform_x"][0, ::PLATFORM_STRIDE]
-                    py = v["platform_y"][0, ::PLATFORM_STRIDE]
+                    at = np.arange(0, m, PLATFORM_STRIDE)
                     if (m - 1) % PLATFORM_STRIDE:
-                        px = np.append(px, v["platform_x"][0, -1])
-                        py = np.append(py, v["platform_y"][0, -1])
+                        at = np.append(at, m - 1)
+                    px, py, pt = v["platform_x"][0, at], v["platform_y"][0, at], clock[at]
                     if last_platform is not None:
-                        px = np.concatenate([[last_platform[0]], px])
-                        py = np.concatenate([[last_platform[1]], py])
-                    track_length += float(np.nansum(np.hypot(np.diff(px), np.diff(py))))
-                    last_platform = (px[-1], py[-1])
+                        px, py, pt = (np.concatenate([[a], b]) for a, b in
+                                      zip(last_platform, (px, py, pt)))
+                    chord = np.hypot(np.diff(px), np.diff(py))
+                    track_length += float(np.nansum(chord[np.diff(pt) <= FLIGHT_PAUSE_S]))
+                    last_platform = (px[-1], py[-1], pt[-1])
                 if bar is not None:
                     bar.update(nb * m)
-            if f.n_obs:
-                t = f.read("delta_time", (0, [0, f.n_obs - 1]))
-                flight_time += float(t[-1] - t[0])
     finally:
         if bar is not None:
             bar.close()
     reps_xy = reps.points()
     return {"shots": shots, "detected": detected, "e_n": e_n, "e_sum": e_sum, "e_sq": e_sq,
             "s_n": s_n, "s_sq": s_sq, "snr_hist": snr_hist.reshape(n_cells, n_bins),
-            "snr_bin_db": snr_w, "cell_tracks": cell_tracks.keys(), "reps": reps_xy,
+            "snr_bin_db": snr_w, "cell_tracks": cell_tracks.keys(),
+            "detected_tracks": detected_tracks.keys(), "track_start": track_start,
+            "reps": reps_xy,
             "tree": cKDTree(reps_xy), "tracks": tracks.finish(),
             "spacing_hist": tracks.spacing_hist,
             "flight_time_s": flight_time, "track_length_m": track_length,
@@ -704,6 +726,11 @@ _GRID_VARS = {   # name: (units, long_name, comment)
     "tracks": ("1", "tracks through the cell",
                "distinct (file, survey line or pass) pairs; a file's turns and transits count "
                "as one"),
+    "detected_tracks": ("1", "tracks with a detection in the cell",
+                        "distinct (file, survey line or pass) pairs with a detected shot"),
+    "revisit_median_s": ("s", "median time between successive detected tracks",
+                         "between the first shots of the tracks (passes, lines) that detect "
+                         "in the cell, in time order; NaN with fewer than two"),
     "median_snr_db": ("dB", "median SNR of the cell's shots", "detected or not"),
     "height_error_std": ("m", "measured height error of one shot",
                          "sample standard deviation of h_li - h_li_true over the cell's "
@@ -725,6 +752,29 @@ _GRID_VARS = {   # name: (units, long_name, comment)
 GRID_VARIABLES = tuple(_GRID_VARS)
 
 
+def _revisit_medians(keys: np.ndarray, start: dict, n_cells: int) -> np.ndarray:
+    """(n_cells,) median interval [s] between the start times of the successive tracks in each
+    cell (``keys``: sorted cell << 24 | track id), NaN where fewer than two tracks."""
+    out = np.full(n_cells, np.nan)
+    if keys.size < 2:
+        return out
+    cell = keys >> 24
+    ids = keys & ((1 << 24) - 1)
+    lut = np.full(int(ids.max()) + 1, np.nan)
+    lut[list(start)] = list(start.values())
+    t = lut[ids]
+    order = np.lexsort((t, cell))
+    cell, t = cell[order], t[order]
+    same = cell[1:] == cell[:-1]
+    gap_cell, gap = cell[1:][same], np.diff(t)[same]
+    order = np.lexsort((gap, gap_cell))           # intervals sorted within each cell
+    gap_cell, gap = gap_cell[order], gap[order]
+    cells, first, count = np.unique(gap_cell, return_index=True, return_counts=True)
+    lo, hi = first + (count - 1) // 2, first + count // 2
+    out[cells] = 0.5 * (gap[lo] + gap[hi])
+    return out
+
+
 def _grid_dataset(acc, in_region, xc, yc, cell_m, min_detections, epsg) -> xr.Dataset:
 
     from .. import __version__
@@ -744,6 +794,8 @@ def _grid_dataset(acc, in_region, xc, yc, cell_m, min_detections, epsg) -> xr.Da
         prec_meas = std / np.sqrt(n.reshape(shape))
         prec_pred = sig / np.sqrt(ns.reshape(shape))
     tracks = np.bincount(acc["cell_tracks"] >> 24, minlength=nx * ny).reshape(shape)
+    det_tracks = np.bincount(acc["detected_tracks"] >> 24, minlength=nx * ny).reshape(shape)
+    revisit = _revisit_medians(acc["detected_tracks"], acc["track_start"], nx * ny).reshape(shape)
     median_snr = _cell_medians(acc["snr_hist"], acc["snr_bin_db"]).reshape(shape)
     tree = acc["tree"]
     gx, gy = np.meshgrid(xc, yc)
@@ -751,7 +803,8 @@ def _grid_dataset(acc, in_region, xc, yc, cell_m, min_detections, epsg) -> xr.Da
     covered = ((det >= min_detections) & (in_region == 1)).astype(np.int8)
     values = {"in_region": in_region, "shots": shots.astype(np.int32),
               "detected_shots": det.astype(np.int32), "detection_fraction": frac,
-              "tracks": tracks.astype(np.int32), "median_snr_db": median_snr,
+              "tracks": tracks.astype(np.int32), "detected_tracks": det_tracks.astype(np.int32),
+              "revisit_median_s": revisit, "median_snr_db": median_snr,
               "height_error_std": std, "height_sigma_predicted": sig,
               "height_precision_measured": prec_meas, "height_precision_predicted": prec_pred,
               "gap": gap, "covered": covered}
@@ -891,6 +944,8 @@ def _summary(grid, acc, crossovers, geom, region_info, cell_m, min_detections, e
         "track_length_m": acc["track_length_m"], "flight_time_s": acc["flight_time_s"],
         "crossovers": int(crossovers.sizes["crossover"]),
         "crossover_rms_m": float(np.sqrt(np.mean(dh ** 2))) if dh.size else float("nan"),
+        "cells_revisited": int(np.count_nonzero(grid["detected_tracks"].values[inr] >= 2)),
+        "median_revisit_s": median(grid["revisit_median_s"].values[inr]),
         "shots": int(acc["n_shots"]), "detected_shots": int(acc["n_detected"]),
         "footprints_on_cell_edges": acc["n_on_edge"] / max(acc["n_in_grid"], 1),
         "cell_m": float(cell_m), "min_detections": int(min_detections),

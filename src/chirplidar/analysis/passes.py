@@ -288,9 +288,11 @@ class Pass:
     sun_elevation_deg: float
     beams: list
     nadir_track_lonlat: list
+    t_entry_s: float = 0.0      # entry and exit on the orbit's clock (s after its epoch)
+    t_exit_s: float = 0.0
 
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return {k: getattr(self, k) for k in self.__dataclass_fields__ if not k.startswith("t_")}
 
 
 def _nadir(orbit, t):
@@ -458,7 +460,7 @@ def _describe(orbit, region, tc, ti, to, t0, t1, beams, attitude, height, steeri
     return Pass(utc[0], utc[1], "ascending" if v[0] @ enu[1] > 0 else "descending",
                 round(to - ti, 3), utc[2],
                 round(float(_distance_m(region.centre_lonlat, lon, lat)[0]) / 1e3, 4),
-                round(float(off), 4), round(float(sun), 3), tracks, nadir)
+                round(float(off), 4), round(float(sun), 3), tracks, nadir, float(ti), float(to))
 
 
 # ------------------------------------------------------------------------------------ reports

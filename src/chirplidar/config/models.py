@@ -556,17 +556,29 @@ class Beams(_Model):
         return self
 
 
+def _utc(text: str):
+    import datetime as _dt
+
+    return _dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+
+
 class SurveyRun(_Model):
     """What to run: shot clock, time span, tier, detection, footprint sampling, chunking."""
 
     tier: Literal["link", "baseband", "rf"]
     prf_hz: float = Field(gt=0, description="record (shot) rate; each record averages "
                           "processing.averages chirps (sys.avg)")
-    start_s: float = Field(description="first shot time, s after the path start (UAV, aircraft) "
-                           "or after the scene-centre crossing (satellite)")
+    start_s: float | None = Field(None, description="first shot time, s after the path start "
+                                  "(UAV, aircraft) or after epoch_utc (satellite: a design "
+                                  "orbit's nadir crosses the scene centre then)")
     stop_s: float | None = Field(None, description="end of the span; omitted = the end of the "
                                  "path (UAV, aircraft only)")
     epoch_utc: str = Field(description="ISO 8601 UTC date-time of t = 0 (the results' time origin)")
+    start_utc: str | None = Field(None, description="satellite campaign: window start (ISO 8601 "
+                                  "UTC); the run flies every pass over the scene until stop_utc, "
+                                  "instead of start_s..stop_s")
+    stop_utc: str | None = Field(None, description="satellite campaign: window end (ISO 8601 "
+                                 "UTC)")
     detection_threshold_db: float = Field(description="SNR in the RBW a return needs to count "
                                           "as detected (the thesis quotes sensitivity at 10 dB)")
     doppler_compensation: Literal["none", "lo_offset"] = Field(
@@ -584,11 +596,13 @@ class SurveyRun(_Model):
     chunk_shots: int = Field(20000, ge=1, description="shots per chunk (memory bound and "
                              "resume granularity)")
 
-    @field_validator("epoch_utc", mode="before")
+    @field_validator("epoch_utc", "start_utc", "stop_utc", mode="before")
     @classmethod
     def _epoch(cls, v):
         import datetime as _dt
 
+        if v is None:
+            return v
         if isinstance(v, _dt.datetime):   # --set survey.epoch_utc=2026-08-15T12:00:00Z (TOML)
             if v.tzinfo is None:
                 raise ValueError(f"give the time zone (a Z for UTC): {v.isoformat()}")
@@ -596,13 +610,26 @@ class SurveyRun(_Model):
         if not isinstance(v, str):
             raise ValueError(f"expected an ISO 8601 date-time string, got {v!r}")
         try:
-            _dt.datetime.fromisoformat(v.replace("Z", "+00:00"))
+            t = _dt.datetime.fromisoformat(v.replace("Z", "+00:00"))
         except ValueError:
             raise ValueError(f"not an ISO 8601 date-time: {v!r}") from None
+        if t.tzinfo is None:
+            raise ValueError(f"give the time zone (a Z for UTC): {v!r}")
         return v
 
     @model_validator(mode="after")
     def _span(self):
+        if (self.start_utc is None) != (self.stop_utc is None):
+            raise ValueError("survey.start_utc and survey.stop_utc go together (a campaign "
+                             "window)")
+        if self.start_utc is not None:
+            if _utc(self.stop_utc) <= _utc(self.start_utc):
+                raise ValueError(f"survey.stop_utc ({self.stop_utc}) is not after "
+                                 f"survey.start_utc ({self.start_utc})")
+            return self
+        if self.start_s is None:
+            raise ValueError("survey.start_s is required (or, for a satellite, a campaign "
+                             "window: survey.start_utc and stop_utc)")
         if self.stop_s is not None and self.stop_s < self.start_s:
             raise ValueError(f"survey.stop_s ({self.stop_s}) is before survey.start_s "
                              f"({self.start_s})")
@@ -633,6 +660,21 @@ class MissionConfig(_Model):
     attitude: AttitudeConfig | None = None
     beams: Beams | None = None
     survey: SurveyRun | None = None
+
+    @model_validator(mode="after")
+    def _campaign(self):
+        sv = self.survey
+        if sv is None or sv.start_utc is None:
+            return self
+        kind = self.platform.kind if self.platform is not None else None
+        if kind != "satellite":
+            raise ValueError(f"survey.start_utc / stop_utc (a campaign window) are for "
+                             f"satellites; a {kind or 'platform-less'} campaign is several "
+                             "flights (one mission file each) combined by `chirplidar coverage`")
+        if sv.start_s is not None or sv.stop_s is not None:
+            raise ValueError("give either a campaign window (survey.start_utc, stop_utc) or a "
+                             "span (survey.start_s, stop_s), not both")
+        return self
 
     @model_validator(mode="after")
     def _sampling(self):

@@ -119,6 +119,8 @@ class SurveyPlan:
     window_height_m: float     # the range window's prediction surface: the scene's mid-height
     doppler_steering: bool = False
     doppler_compensation: str = "none"
+    chunk_starts: np.ndarray | None = None   # campaign: first shot of each chunk (per pass)
+    pass_starts_s: np.ndarray | None = None  # campaign: start of each pass [s] (its track)
 
     @property
     def n_shots(self) -> int:
@@ -126,10 +128,26 @@ class SurveyPlan:
 
     @property
     def n_chunks(self) -> int:
+        if self.chunk_starts is not None:
+            return max(1, len(self.chunk_starts))
         return max(1, -(-self.n_shots // self.chunk_shots))
 
     def chunk_times(self, index: int) -> np.ndarray:
+        if self.chunk_starts is not None:
+            if len(self.chunk_starts) == 0:
+                return self.t_s[:0]
+            a = self.chunk_starts[index]
+            b = self.chunk_starts[index + 1] if index + 1 < len(self.chunk_starts) \
+                else self.n_shots
+            return self.t_s[a:b]
         return self.t_s[index * self.chunk_shots:(index + 1) * self.chunk_shots]
+
+    def track_of(self, t_s) -> np.ndarray:
+        """(n,) track of each shot time: a campaign's pass number, else :func:`track_index`."""
+        if self.pass_starts_s is not None:
+            return np.searchsorted(self.pass_starts_s, np.asarray(t_s, float),
+                                   side="right").astype(np.int64) - 1
+        return track_index(self.path, t_s)
 
 
 def _beams(b) -> BeamPattern:
@@ -209,30 +227,88 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
                           f"{', '.join('[' + m + ']' for m in missing)}")
     sv = config.survey
     path = _path(config, scene, source)
-    stop = sv.stop_s
-    if stop is None:
-        if not hasattr(path, "duration_s"):
-            raise ConfigError(f"{source}: survey.stop_s is required for a satellite")
-        stop = path.duration_s
-    if isinstance(path, TleOrbit):
-        try:
-            path.check_window(sv.start_s, stop, "survey.epoch_utc")
-        except ValueError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
-    if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
-        raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the path "
-                          f"({path.duration_s:.1f} s)")
-    t = shot_times(sv.start_s, stop, sv.prf_hz)
     att = config.attitude
+    beams = _beams(config.beams)
+    attitude = Attitude(np.radians(att.roll_deg), np.radians(att.pitch_deg),
+                        np.radians(att.yaw_deg))
+    chunk_starts = pass_starts = None
+    if sv.start_utc is not None:
+        segments = _campaign_segments(path, scene, beams, attitude, config, source)
+        pieces = [shot_times(a, b, sv.prf_hz) for a, b in segments]
+        t = np.concatenate(pieces) if pieces else np.zeros(0)
+        # Each pass is one or more chunks (a chunk never spans two passes).
+        sizes = [len(p) for p in pieces]
+        first = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int) if sizes else []
+        chunk_starts = np.array([f + k for f, m in zip(first, sizes)
+                                 for k in range(0, max(m, 1), sv.chunk_shots) if m], dtype=int)
+        pass_starts = np.array([a for a, _ in segments], float)
+    else:
+        stop = sv.stop_s
+        if stop is None:
+            if not hasattr(path, "duration_s"):
+                raise ConfigError(f"{source}: survey.stop_s is required for a satellite")
+            stop = path.duration_s
+        if isinstance(path, TleOrbit):
+            try:
+                path.check_window(sv.start_s, stop, "survey.epoch_utc")
+            except ValueError as exc:
+                raise ConfigError(f"{source}: {exc}") from None
+        if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
+            raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the "
+                              f"path ({path.duration_s:.1f} s)")
+        t = shot_times(sv.start_s, stop, sv.prf_hz)
     z0, z1 = scene.height_range_m
     margin = 1.0 + 1e-3 * (z1 - z0)
-    return SurveyPlan(path=path, beams=_beams(config.beams),
-                      attitude=Attitude(np.radians(att.roll_deg), np.radians(att.pitch_deg),
-                                        np.radians(att.yaw_deg)),
+    return SurveyPlan(path=path, beams=beams, attitude=attitude,
                       jitter_rad_rms=att.jitter_rad_rms, t_s=t, chunk_shots=sv.chunk_shots,
                       epsg=scene.epsg, target_height_m=z0 - margin, entry_height_m=z1 + margin,
                       window_height_m=0.5 * (z0 + z1), doppler_steering=att.doppler_steering,
-                      doppler_compensation=sv.doppler_compensation)
+                      doppler_compensation=sv.doppler_compensation,
+                      chunk_starts=chunk_starts, pass_starts_s=pass_starts)
+
+
+def _campaign_segments(path, scene, beams, attitude, config, source) -> list[tuple[float, float]]:
+    """(start, stop) [s after survey.epoch_utc] of every pass between survey.start_utc and
+    stop_utc in which a beam can reach the scene: the passes whose nadir enters the scene's
+    extent widened by the beams' largest ground offset from nadir (one pass over that reach
+    never misses a beam's crossing), one PRF period added at each end."""
+    from shapely.geometry import box
+
+    from ..analysis.passes import Region, _EpochOrbit, find_passes
+    from ..geometry import earth_orientation as eo
+
+    sv = config.survey
+    epoch = eo.mjd_utc(sv.epoch_utc)
+    t0 = (eo.mjd_utc(sv.start_utc) - epoch) * 86400.0
+    t1 = (eo.mjd_utc(sv.stop_utc) - epoch) * 86400.0
+    if isinstance(path, TleOrbit):
+        try:
+            path.check_window(t0, t1, "survey.start_utc / stop_utc")
+        except ValueError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+        orbit = path
+    else:
+        orbit = _EpochOrbit(path, epoch)
+    p0 = path.positions(np.array([0.0 if t0 <= 0 <= t1 else t0]))[0]
+    height = float(frames.ecef_to_geodetic(*p0)[2])
+    tilt = float(np.max(beams.off_nadir_rad)) + abs(float(np.max(np.abs(
+        np.atleast_1d(attitude.pitch_rad))))) + abs(float(np.max(np.abs(
+            np.atleast_1d(attitude.roll_rad)))))
+    reach = height * np.tan(tilt) + 1000.0
+    x0, x1, y0, y1 = scene.bounds_xy
+    lat, lon = scene.center_lat_lon_deg
+    region = Region(str(scene.path), f"EPSG:{scene.epsg}",
+                    box(x0, y0, x1, y1).buffer(reach), (lon, lat), float(np.mean(
+                        scene.height_range_m)))
+    try:
+        found = find_passes(orbit, region, eo.parse_utc(sv.start_utc), (t1 - t0) / 86400.0)
+    except ValueError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    if not found:
+        raise ConfigError(f"{source}: no pass over the scene {Path(scene.path).name} between "
+                          f"survey.start_utc = {sv.start_utc} and stop_utc = {sv.stop_utc}")
+    dt = 1.0 / sv.prf_hz
+    return [(p.t_entry_s - dt, p.t_exit_s + dt) for p in found]
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -340,7 +416,7 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
         sub_r = rays.range_offset_m[..., None] + t_sub * rays.metres_per_unit[..., None]
     sub_r = np.where(np.isfinite(t_sub), sub_r, np.inf)
     return ChunkGeometry(
-        t_s=t_s, track=track_index(plan.path, t_s), platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
+        t_s=t_s, track=plan.track_of(t_s), platform_xyh=np.asarray(platform, float), off_nadir_rad=off, azimuth_rad=az,
         closing_speed_mps=closing, doppler_speed_mps=seen, rays=rays, range_true_m=rng_true, range_predicted_m=rng_pred,
         beam_power_share=plan.beams.power_share,
         hit_xyz_m=np.where(hit[..., None], centre.points_m.reshape(n, b, 3), np.nan),
