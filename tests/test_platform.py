@@ -349,3 +349,37 @@ def test_shot_geometry_uav_rays_in_scene_frame():
     rng_m = rays.range_m(tt)
     assert np.allclose(rng_m[:, 0], 100.0, atol=1e-9)
     assert np.allclose(rng_m[:, 1], 100.0 / np.cos(np.radians(15.0)), rtol=1e-12)
+
+
+def test_uav_climb_limited_profile_keeps_limits_and_clearance():
+    """Over a 60 m ridge (a closed-form ground: a triangle 200 m wide) at 20 m/s with 2 m/s
+    climb and 3 m/s descent: never below 100 m above ground, vertical speed within the limits,
+    the top of the ridge cleared by exactly 100 m (the lowest feasible profile touches it)."""
+    def ground(x, y):
+        return np.maximum(0.0, 60.0 - 0.6 * np.abs(np.asarray(x) - 1000.0))
+
+    w = np.array([[0.0, 0.0, 100.0], [2000.0, 0.0, 100.0]])
+    path = P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
+                     profile_step_m=1.0)
+    t = np.linspace(0.0, path.duration_s, 4001)
+    p, v = path.positions(t), path.velocities(t)
+    agl = p[:, 2] - ground(p[:, 0], p[:, 1])
+    assert agl.min() >= 100.0 - 1e-6
+    assert v[:, 2].max() <= 2.0 + 1e-9 and v[:, 2].min() >= -3.0 - 1e-9
+    assert p[np.argmin(np.abs(p[:, 0] - 1000.0)), 2] == pytest.approx(160.0, abs=0.1)
+    # the climb starts 60 m / (2 / 20) = 600 m before the ridge top (closed form): at x = 400 m
+    top = P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
+                    profile_step_m=1.0)
+    z = top.positions(np.array([390.0, 410.0]) / 20.0)[:, 2]
+    assert z[0] == pytest.approx(100.0, abs=1e-6) and z[1] == pytest.approx(101.0, abs=0.01)
+    rep = path.profile_report()
+    assert rep["min_clearance_m"] == pytest.approx(100.0, abs=1e-6)
+    assert rep["max_climb_mps"] == pytest.approx(2.0, rel=1e-9)
+    # without limits the path follows the ground exactly: 0.6 x 20 m/s = 12 m/s on the slope
+    exact = P.UavPath(w, 20.0, "above_ground", ground)
+    assert exact.velocities(np.array([47.5]))[0, 2] == pytest.approx(12.0, rel=1e-6)   # x = 950 m
+    assert exact.profile_report() is None
+    with pytest.raises(ValueError, match="go together"):
+        P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0)
+    with pytest.raises(ValueError, match="absolute altitude"):
+        P.UavPath(w, 20.0, "absolute", None, max_climb_mps=2.0, max_descent_mps=3.0)

@@ -1,5 +1,5 @@
 """Command line ``chirplidar``: ``shot``, ``sweep``, ``run``, ``coverage``, ``view``, ``study``,
-``passes``, ``bench`` and ``demo``.
+``plan``, ``passes``, ``bench`` and ``demo``.
 
 Exit codes: 0 success, 1 a run finished but a requested product could not be made (e.g. no
 spectrum to plot), 2 bad input (configuration error, unknown name, bad option), 130 interrupted.
@@ -451,6 +451,36 @@ def cmd_view(args) -> int:
     return 0
 
 
+def cmd_plan(args) -> int:
+    from .analysis.plan import Requirement, find_plan, format_plan, plan_summary, write_plan
+
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"--out {out_dir}: exists and is not a folder")
+    clash = [out_dir / n for n in ("mission.toml", "plan.geojson", "mission.plan", "plan.json")
+             if (out_dir / n).exists()]
+    if clash and not args.overwrite:
+        raise UsageError(f"--out {out_dir}: {clash[0].name} exists: pass --overwrite to replace "
+                         "the plan (nothing was computed)")
+    if not Path(args.mission).is_file():
+        raise UsageError(f"{args.mission}: mission file does not exist")
+    req = Requirement(args.cell_m, args.min_covered, args.min_detections,
+                      args.max_height_precision_m)
+    say = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+    result = find_plan(args.mission, req, vary=args.vary, overrides=args.set or [],
+                       workers=args.workers, progress=say)
+    try:
+        paths = write_plan(result, out_dir, overwrite=args.overwrite)
+    except FileExistsError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        print(_dump_json(plan_summary(result) | {"files": {k: str(v) for k, v in paths.items()}}))
+    else:
+        print(format_plan(result))
+        print(f"  wrote            {', '.join(str(p) for p in paths.values())}")
+    return 0 if result.best is not None else 1
+
+
 def cmd_study(args) -> int:
     """``chirplidar study``: the survey mission at every point of a grid of one or two keys
     (:mod:`chirplidar.analysis.study`); a table, JSON, a plot and/or a NetCDF study file."""
@@ -869,6 +899,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--zoom", type=float, default=None, metavar="F",
                    help="3-D: zoom factor after fitting the view (2: twice as close; default 1)")
     p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser("plan", help="choose the line spacing (and altitude, speed, ... when "
+                       "asked) that meets a coverage requirement at the least flight time; write "
+                       "the mission, a GeoJSON and a QGroundControl plan")
+    p.add_argument("mission", metavar="MISSION", help="UAV or aircraft mission with a "
+                   "survey_polygon_m, e.g. missions/greenland_uav.toml")
+    p.add_argument("--cell-m", type=float, required=True, metavar="C",
+                   help="coverage cell size [m]")
+    p.add_argument("--min-covered", type=float, required=True, metavar="F",
+                   help="fraction of the survey polygon's cells that must be covered")
+    p.add_argument("--min-detections", type=int, default=1, metavar="K",
+                   help="detected shots a cell needs to count as covered (default 1)")
+    p.add_argument("--max-height-precision-m", type=float, default=None, metavar="S",
+                   help="largest median height error of one shot over the cells [m]")
+    p.add_argument("--vary", action="append", default=[], metavar="KEY=START:STOP:N",
+                   help="also choose this key (altitude, speed, heading, ...): its values as "
+                        "study takes them; at most two")
+    p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
+                   help="override a mission key for every candidate")
+    p.add_argument("--out", default="plan", metavar="PLAN_DIR",
+                   help="folder for mission.toml, plan.geojson, mission.plan, plan.json "
+                        "(default ./plan)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing plan")
+    p.add_argument("--workers", type=int, default=None, help="Dask workers per candidate run")
+    p.add_argument("--json", action="store_true", help="print the plan report as JSON")
+    p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("study", help="run a survey mission over a grid of one or two keys "
                        "(altitude, line spacing, laser power, material, ...) and tabulate "

@@ -427,7 +427,8 @@ class CoverageResult:
 
 
 def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
-                     min_detections: int = 1, progress: bool = False) -> CoverageResult:
+                     min_detections: int = 1, progress: bool = False,
+                     grid_shift_m: tuple[float, float] = (0.0, 0.0)) -> CoverageResult:
     """Coverage of the results files ``paths`` on cells of ``cell_m`` projected metres.
 
     ``region``: ``"survey"`` (the runs' survey polygon; the default where one exists),
@@ -436,7 +437,9 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
     centre is (on the boundary counts); it is covered with ``min_detections`` or more detected
     shots. CoverageError (one line) on bad input: no files, files in different projections,
     a cell size <= 0 or larger than the region, a region that misses every footprint, no
-    detected shot at all.
+    detected shot at all. The grid starts at the region's lower-left corner, moved back by
+    ``grid_shift_m`` (x, y) [m] (``chirplidar plan`` checks a second grid shifted by half a
+    cell: survey lines on cell edges cover both neighbours in one grid and one in the other).
     """
     from shapely import intersects_xy, wkt
     from shapely.geometry import box
@@ -480,6 +483,7 @@ def compute_coverage(paths, *, cell_m: float, region=None, bounds=None,
                                 f"{_fmt_bounds(geom.bounds)} (EPSG:{epsg}) misses the results' "
                                 f"scenes ({'; '.join(_fmt_bounds(sc.bounds) for sc in scenes)})")
         rx0, ry0, rx1, ry1 = geom.bounds
+        rx0, ry0 = rx0 - float(grid_shift_m[0]), ry0 - float(grid_shift_m[1])
         if cell_m > max(rx1 - rx0, ry1 - ry0):
             raise CoverageError(f"--cell-m {cell_m:g}: larger than the region "
                                 f"({rx1 - rx0:.0f} m x {ry1 - ry0:.0f} m)")

@@ -7,6 +7,7 @@ Errors name the file and the dotted key path. Thesis names (``chrp.F2``) are acc
 from __future__ import annotations
 
 import difflib
+import os
 import sys
 import typing
 from pathlib import Path
@@ -152,6 +153,10 @@ def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
         raise ConfigError(_format_validation(err, source)) from None
 
 
+#: Keys that name files, relative to the mission file that sets them.
+PATH_KEYS = ("scene.file",)
+
+
 def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     """The mission file as canonical dotted keys (thesis names translated).
 
@@ -178,6 +183,11 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     if base_path in _seen:
         raise ConfigError(f"{path}: 'extends' loops back to {base_path}")
     base = read_mission_flat(base_path, _seen + (base_path,))
+    # File paths are relative to the file that names them: re-anchor the parent's to this one.
+    for key in PATH_KEYS:
+        value = base.get(key)
+        if isinstance(value, str) and not Path(value).is_absolute():
+            base[key] = os.path.relpath(base_path.parent / value, path.parent.resolve())
     return {**base, **flat}
 
 

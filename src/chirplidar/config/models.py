@@ -458,12 +458,32 @@ class UavPlatform(_Survey2D):
     altitude_m: float = Field(description="flight height: above the terrain or above the WGS-84 "
                               "ellipsoid, per altitude_mode")
     altitude_mode: Literal["above_ground", "absolute"]
+    max_climb_mps: float | None = Field(None, gt=0, description="above_ground: largest climb "
+                                        "rate; with max_descent_mps the UAV flies the lowest "
+                                        "profile at least altitude_m above the ground that "
+                                        "keeps within both (omitted: follows the ground "
+                                        "exactly)")
+    max_descent_mps: float | None = Field(None, gt=0, description="above_ground: largest "
+                                          "descent rate")
+    endurance_s: float | None = Field(None, gt=0, description="longest flight the platform can "
+                                      "make (a run warns beyond it; plan keeps within it)")
+
+    @model_validator(mode="after")
+    def _climb_limits(self):
+        if (self.max_climb_mps is None) != (self.max_descent_mps is None):
+            raise ValueError("platform.uav.max_climb_mps and max_descent_mps go together")
+        if self.max_climb_mps is not None and self.altitude_mode != "above_ground":
+            raise ValueError("platform.uav.max_climb_mps / max_descent_mps shape an "
+                             "above_ground profile (altitude_mode = 'above_ground')")
+        return self
 
 
 class AircraftPlatform(_Survey2D):
     speed_mps: float = Field(gt=0, description="ground speed")
     altitude_m: float = Field(description="flight height above the WGS-84 ellipsoid")
     turn_radius_m: float = Field(gt=0, description="radius of the turns joining the lines")
+    endurance_s: float | None = Field(None, gt=0, description="longest flight the platform can "
+                                      "make (a run warns beyond it; plan keeps within it)")
 
 
 class OrbitPlatform(_Model):

@@ -99,6 +99,11 @@ class UavPath:
     segment_tracks : optional (k - 1,) integer track of each leg (waypoint i to i + 1): a survey
         line's number, or -1 for a transit between lines (see :func:`lawnmower`); by default
         every leg is its own track, numbered from 0. See :meth:`track_index`.
+    max_climb_mps, max_descent_mps : above ground, the vertical-rate limits: the flight height
+        is then the lowest profile that keeps at least the waypoints' height above the ground
+        and respects them (:func:`terrain_following.flyable_profile` on the ground sampled every
+        ``profile_step_m`` along the path, linear in between); without them the path follows
+        the ground exactly.
     """
 
     waypoints_m: np.ndarray
@@ -106,6 +111,9 @@ class UavPath:
     altitude_mode: str = "absolute"
     ground_height_m: Callable | None = None
     segment_tracks: np.ndarray | None = None
+    max_climb_mps: float | None = None
+    max_descent_mps: float | None = None
+    profile_step_m: float = 2.0
     frame: str = field(default="projected", init=False)
 
     def __post_init__(self):
@@ -135,6 +143,54 @@ class UavPath:
                              "altitude_mode='above_ground'")
         lengths = np.linalg.norm(np.diff(w, axis=0), axis=1)
         object.__setattr__(self, "_cum_m", np.concatenate([[0.0], np.cumsum(lengths)]))
+        limits = (self.max_climb_mps, self.max_descent_mps)
+        object.__setattr__(self, "_profile", None)
+        if any(v is not None for v in limits):
+            if None in limits:
+                raise ValueError("max_climb_mps and max_descent_mps go together")
+            if self.altitude_mode != "above_ground":
+                raise ValueError("max_climb_mps / max_descent_mps shape an above_ground "
+                                 "profile; an absolute altitude does not follow the terrain")
+            object.__setattr__(self, "_profile", self._flyable())
+
+    def _flyable(self):
+        """(distance [m], flight height [m]) of the climb-limited profile (class docstring)."""
+        from chirplidar.geometry.terrain_following import flyable_profile
+
+        step = _checks.positive("profile_step_m", self.profile_step_m)
+        s = np.union1d(np.arange(0.0, self.length_m, step), self._cum_m)
+        p, _ = self._locate(s / self.speed_mps)
+        ground = np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
+        if not np.any(np.isfinite(ground)):
+            raise ValueError("the path never passes over the terrain: no ground to follow")
+        ok = np.isfinite(ground)   # off the terrain: hold the nearest known ground height
+        ground = np.interp(s, s[ok], ground[ok])
+        # Heights may differ from waypoint to waypoint: the clearance is the waypoints' own.
+        clearance = np.interp(s, self._cum_m, self.waypoints_m[:, 2])
+        z = flyable_profile(s, ground + clearance - clearance.min(), clearance.min(),
+                            self.speed_mps, self.max_climb_mps, self.max_descent_mps)
+        return s, z, ground
+
+    def height_profile(self, step_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(distance along the path [m], flight height [m]): the climb-limited profile's
+        samples, else the path sampled every ``step_m`` (default ``profile_step_m``) with its
+        heights (the ground followed exactly, or the absolute altitude)."""
+        if self._profile is not None:
+            return self._profile[0].copy(), self._profile[1].copy()
+        step = _checks.positive("step_m", self.profile_step_m if step_m is None else step_m)
+        s = np.union1d(np.arange(0.0, self.length_m, step), self._cum_m)
+        return s, self.positions(s / self.speed_mps)[:, 2]
+
+    def profile_report(self) -> dict | None:
+        """Height above ground and vertical rates of the climb-limited profile
+        (:func:`terrain_following.profile_report`), or None when the path follows the ground
+        exactly or flies at an absolute altitude."""
+        from chirplidar.geometry.terrain_following import profile_report
+
+        if self._profile is None:
+            return None
+        s, z, ground = self._profile
+        return profile_report(s, ground, z, self.speed_mps)
 
     @property
     def length_m(self) -> float:
@@ -166,14 +222,26 @@ class UavPath:
     def positions(self, t_s) -> np.ndarray:
         """(n, 3) scene-frame positions [m] at times ``t_s`` (n,) [s] since the path start."""
         p, _ = self._locate(t_s)
-        if self.altitude_mode == "above_ground":
+        if self._profile is not None:
+            p = p.copy()
+            s, z, _ = self._profile
+            p[:, 2] = np.interp(_times("t_s", t_s) * self.speed_mps, s, z)
+        elif self.altitude_mode == "above_ground":
             p = p.copy()
             p[:, 2] += np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
         return p
 
     def velocities(self, t_s) -> np.ndarray:
-        """(n, 3) velocities [m/s]; above ground, v_z adds the terrain slope along track."""
+        """(n, 3) velocities [m/s]; above ground, v_z adds the terrain slope along track (or
+        the climb-limited profile's slope)."""
         p, v = self._locate(t_s)
+        if self._profile is not None:
+            s, z, _ = self._profile
+            at = _times("t_s", t_s) * self.speed_mps
+            k = np.clip(np.searchsorted(s, at, side="right") - 1, 0, s.size - 2)
+            v = v.copy()
+            v[:, 2] = (z[k + 1] - z[k]) / (s[k + 1] - s[k]) * self.speed_mps
+            return v
         if self.altitude_mode == "above_ground" and len(p):
             h = 0.5  # m, central-difference step along the horizontal velocity
             vh = np.linalg.norm(v[:, :2], axis=1)

@@ -17,6 +17,7 @@ Conventions
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -184,7 +185,8 @@ def _path(config, scene, source: str):
                 xy = _xy(sec.waypoints_m, sec.coordinates, scene)
             w = np.column_stack([xy, np.full(len(xy), sec.altitude_m)])
             ground = scene.ground_height_m if sec.altitude_mode == "above_ground" else None
-            return UavPath(w, sec.speed_mps, sec.altitude_mode, ground, segment_tracks=legs)
+            return UavPath(w, sec.speed_mps, sec.altitude_mode, ground, segment_tracks=legs,
+                           max_climb_mps=sec.max_climb_mps, max_descent_mps=sec.max_descent_mps)
         if sec.survey_polygon_m is not None:
             lines = lawnmower_lines(_xy(sec.survey_polygon_m, sec.coordinates, scene),
                                     sec.line_spacing_m, hdg)
@@ -199,11 +201,16 @@ def _path(config, scene, source: str):
         raise ConfigError(f"{source}: {key}: {exc}") from None
 
 
+def _flight_section(config):
+    """``[platform.uav]`` or ``[platform.aircraft]``, or None for a satellite."""
+    pf = config.platform
+    return pf.uav if pf.kind == "uav" else pf.aircraft if pf.kind == "aircraft" else None
+
+
 def survey_polygon_xy(config, scene) -> np.ndarray | None:
     """(k, 2) projected x, y [m] of the mission's survey polygon (UAV or aircraft
     ``survey_polygon_m``), or None when the path is given by waypoints or an orbit."""
-    pf = config.platform
-    sec = pf.uav if pf.kind == "uav" else pf.aircraft if pf.kind == "aircraft" else None
+    sec = _flight_section(config)
     if sec is None or sec.survey_polygon_m is None:
         return None
     return _xy(sec.survey_polygon_m, sec.coordinates, scene)
@@ -257,6 +264,11 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
             raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the "
                               f"path ({path.duration_s:.1f} s)")
         t = shot_times(sv.start_s, stop, sv.prf_hz)
+    endurance = getattr(_flight_section(config), "endurance_s", None)
+    if endurance is not None and path.duration_s > endurance:
+        warnings.warn(f"{source}: the path takes {path.duration_s:.0f} s, longer than "
+                      f"platform.{config.platform.kind}.endurance_s = {endurance:g} s",
+                      stacklevel=2)
     z0, z1 = scene.height_range_m
     margin = 1.0 + 1e-3 * (z1 - z0)
     return SurveyPlan(path=path, beams=beams, attitude=attitude,
