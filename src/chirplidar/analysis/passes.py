@@ -41,8 +41,9 @@ from ..geometry.platform import (Attitude, BeamPattern, TleOrbit, beam_direction
                                  zero_doppler_attitude)
 from ..geometry.sun import sun_elevation_deg
 
-__all__ = ["OrbitSource", "Pass", "Region", "find_passes", "format_passes", "orbit_from_mission",
-           "orbit_from_tle_file", "passes_report", "region_from_geojson", "region_from_scene"]
+__all__ = ["EpochOrbit", "OrbitSource", "Pass", "Region", "find_passes", "format_passes",
+           "orbit_from_mission", "orbit_from_tle_file", "passes_report", "region_from_geojson",
+           "region_from_scene"]
 
 COARSE_STEP_S = 20.0        # nadir screen: ~150 km of track per step
 FINE_STEP_S = 1.0           # polyline of the nadir and beam tracks (~7 km: sag < 1 m)
@@ -179,7 +180,7 @@ def region_from_geojson(path) -> Region:
 
 # ------------------------------------------------------------------------------------ orbits
 @dataclass(frozen=True)
-class _EpochOrbit:
+class EpochOrbit:
     """A design orbit whose ``t_s = 0`` is the MJD (UTC) ``epoch_mjd``."""
 
     orbit: object
@@ -266,7 +267,7 @@ def orbit_from_mission(path, start_utc) -> OrbitSource:
         raise ConfigError(f"{src}: a design orbit ([platform.orbit]) is placed over the "
                           "mission's [scene] at survey.epoch_utc: both are needed")
     orbit = _orbit_over(_scene(scene, changes), pf.orbit, src)
-    return OrbitSource(_EpochOrbit(orbit, eo.mjd_utc(cfg.survey.epoch_utc)),
+    return OrbitSource(EpochOrbit(orbit, eo.mjd_utc(cfg.survey.epoch_utc)),
                        f"{Path(path).name} (design orbit)", None, beams, att, steering, scene,
                        changes)
 

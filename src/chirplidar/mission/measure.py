@@ -677,7 +677,8 @@ def rf_shot_stream(seq, flat: int) -> np.random.Generator:
     return stream(seq, STREAM_RF + int(flat))
 
 
-def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int):
+def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int,
+                  window_ref=None):
     """The rf tier's input for shot ``i``, beam ``j`` of a chunk: (configuration, footprint
     :class:`~chirplidar.tiers.echoes.Echoes`).
 
@@ -689,7 +690,9 @@ def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int):
     target's power into the shot's: extra_attenuation_db = 10 log10(f_ref(R0) P_tx / (P_sig g)),
     f_ref = :func:`reference_power_fraction`, g the echoes' gain (:func:`footprint_echoes`: the
     tier scales the received power by it). The echoes are the footprint's sub-rays at their delay
-    offsets 2 n (R_k - R0) / c (n: ``channel.group_index``).
+    offsets 2 n (R_k - R0) / c (n: ``channel.group_index``). With ``survey.range_window_m`` the
+    reference delay is the shot's range gate (``window_ref``: the chunk's, as
+    :func:`window_reference_delay_s` gives them; computed when not passed).
     """
     from ..tiers.echoes import Echoes
 
@@ -697,7 +700,9 @@ def rf_shot_setup(config, base, ptx_w: float, geom, returns, i: int, j: int):
     n_grp = config.channel.group_index
     r0 = float(r_mean[i, j])
     over = {"channel.distance_m": r0}
-    ref, _ = window_reference_delay_s(config, geom, r_mean)
+    # The range window's reference delays of the chunk (computed here when not passed).
+    ref = window_ref if window_ref is not None else window_reference_delay_s(config, geom,
+                                                                               r_mean)[0]
     if ref is not None:
         over["system.reference_delay_s"] = float(ref[i, j])
     if "doppler" in base.effects.enabled:
@@ -737,9 +742,10 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     no_overlap = np.zeros((n, b), bool)
     out_of_band = np.zeros((n, b), bool)
     n_grp = config.channel.group_index
+    window_ref, outside = window_reference_delay_s(config, geom, returns[1])
     for flat in np.flatnonzero(ok.ravel()):  # the rf tier is the reference: one shot at a time
         i, j = divmod(int(flat), b)
-        cfg, echoes = rf_shot_setup(config, base, bud.ptx_w, geom, returns, i, j)
+        cfg, echoes = rf_shot_setup(config, base, bud.ptx_w, geom, returns, i, j, window_ref)
         out = simulate_rf(cfg, rf_shot_stream(seq, flat), batch=1, echoes=echoes)
         snr[i, j] = float(db_to_ratio(out["SNR"][0]))
         f_meas[i, j] = out["f_beat_hz"][0]
@@ -750,7 +756,7 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
         if progress is not None:
             progress(1)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band, window_reference_delay_s(config, geom, returns[1])[1],
+                   out_of_band, outside,
                    doppler_displaced(config, scene, geom, bud.rate_hz_per_s, bud.train.rise_s))
 
 

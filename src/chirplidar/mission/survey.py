@@ -247,7 +247,7 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
         sizes = [len(p) for p in pieces]
         first = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int) if sizes else []
         chunk_starts = np.array([f + k for f, m in zip(first, sizes)
-                                 for k in range(0, max(m, 1), sv.chunk_shots) if m], dtype=int)
+                                 for k in range(0, m, sv.chunk_shots)], dtype=int)
         pass_starts = np.array([a for a, _ in segments], float)
     else:
         stop = sv.stop_s
@@ -286,7 +286,7 @@ def _campaign_segments(path, scene, beams, attitude, config, source) -> list[tup
     never misses a beam's crossing), one PRF period added at each end."""
     from shapely.geometry import box
 
-    from ..analysis.passes import Region, _EpochOrbit, find_passes
+    from ..analysis.passes import Region, EpochOrbit, find_passes
     from ..geometry import earth_orientation as eo
 
     sv = config.survey
@@ -300,7 +300,7 @@ def _campaign_segments(path, scene, beams, attitude, config, source) -> list[tup
             raise ConfigError(f"{source}: {exc}") from None
         orbit = path
     else:
-        orbit = _EpochOrbit(path, epoch)
+        orbit = EpochOrbit(path, epoch)
     p0 = path.positions(np.array([0.0 if t0 <= 0 <= t1 else t0]))[0]
     height = float(frames.ecef_to_geodetic(*p0)[2])
     tilt = float(np.max(beams.off_nadir_rad)) + abs(float(np.max(np.abs(
