@@ -140,9 +140,13 @@ def _format_validation(err: ValidationError, source: str) -> str:
         elif e["type"] == "extra_forbidden":
             lines.append(_unknown_key_message(loc, source))
         else:
-            where = f"'{loc}'{also}" if loc else "configuration"
-            lines.append(f"{source}: {where}: {e['msg']} (got {e.get('input')!r})"
-                         if loc else f"{source}: {e['msg']}")
+            msg = e["msg"].removeprefix("Value error, ")
+            if not loc or isinstance(e.get("input"), dict):
+                # a section's own check: its message names the keys; the section's whole
+                # contents would bury it
+                lines.append(f"{source}: {msg}")
+            else:
+                lines.append(f"{source}: '{loc}'{also}: {msg} (got {e.get('input')!r})")
     return "\n".join(lines)
 
 
