@@ -123,5 +123,5 @@ def test_bad_tle_is_refused(line1, line2, match):
 def test_window_far_from_the_tle_epoch_is_refused():
     orbit = TleOrbit(ICESAT2_L1, ICESAT2_L2, "2026-10-05T00:00:00Z")
     orbit.check_window(0.0, 90 * 86400.0, "survey")
-    with pytest.raises(ValueError, match=r"survey: the window reaches 2\d\d days"):
+    with pytest.raises(ValueError, match=r"survey: the window reaches 2\d\d\.\d days"):
         orbit.check_window(0.0, 250 * 86400.0, "survey")

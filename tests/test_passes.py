@@ -331,3 +331,25 @@ def test_tle_needs_a_region_and_one_orbit_source(tmp_path, capsys):
     assert "--start" in _one_line_error(capsys, ["passes", "--tle", tle, "--region",
                                                  str(SCENE), "--start", "2026-10-05",
                                                  "--days", "1"])
+
+
+def test_region_split_at_the_antimeridian(tmp_path):
+    """A Ross Ice Shelf box split at 180 deg as RFC 7946 3.1.9 asks (two polygons, 165 E..180
+    and 180..155 W): one region centred at 175 W (closed form: the box's middle longitude);
+    ICESat-2 (92 deg) crosses it several times a day; a polygon genuinely wider than 180 deg
+    is refused."""
+    path = tmp_path / "ross.geojson"
+    path.write_text(json.dumps({"type": "MultiPolygon", "coordinates": [
+        [[[165.0, -82.0], [180.0, -82.0], [180.0, -78.0], [165.0, -78.0], [165.0, -82.0]]],
+        [[[-180.0, -82.0], [-155.0, -82.0], [-155.0, -78.0], [-180.0, -78.0],
+          [-180.0, -82.0]]]]}))
+    region = region_from_geojson(path)
+    assert region.centre_lonlat[0] == pytest.approx(-175.0, abs=0.5)
+    orbit = orbit_from_tle_file(_tle(tmp_path), "2026-10-05T00:00:00Z").orbit
+    passes = find_passes(orbit, region, "2026-10-05T00:00:00Z", 1.0)
+    assert len(passes) >= 3
+    wide = tmp_path / "wide.geojson"
+    wide.write_text(json.dumps({"type": "Polygon", "coordinates": [
+        [[-100.0, -70.0], [100.0, -70.0], [100.0, -65.0], [-100.0, -65.0], [-100.0, -70.0]]]}))
+    with pytest.raises(ValueError, match="less than 180 deg of longitude"):
+        region_from_geojson(wide)

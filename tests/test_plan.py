@@ -65,17 +65,60 @@ def test_demo_area_plan_meets_its_requirement_when_flown(tmp_path, capsys):
 
 
 def test_unmeetable_requirement_reports_the_best_plan(tmp_path, capsys):
-    """A 1 cm median height precision is beyond this instrument (4.6 cm per shot): exit 1, the
-    best plan found is written and what it achieves is said."""
+    """A 0.1 mm precision of a 100 m cell's mean height needs ~2e5 shots per cell at 4.6 cm
+    each ((4.6 cm / 0.1 mm)^2), beyond lines an eighth of a cell apart (~3000 shots per cell
+    at 0.2 m along track): exit 1, the best plan found is written and what it achieves is
+    said."""
     out = tmp_path / "plan"
     code = main(["plan", str(UAV), "--cell-m", "100", "--min-covered", "0.9",
-                 "--max-height-precision-m", "0.01", "--out", str(out), "--set", *SMALL])
+                 "--max-height-precision-m", "0.0001", "--out", str(out), "--set", *SMALL])
     text = capsys.readouterr()
     assert code == 1
-    assert "cannot be met" in text.out and "median height precision" in text.out
+    assert "cannot be met" in text.out and "precision of a cell's mean height" in text.out
     assert (out / "mission.plan").is_file()
     report = json.loads((out / "plan.json").read_text())
     assert not report["meets_requirement"] and report["chosen"]["shortfalls"]
+
+
+def test_vary_altitude_picks_the_quickest_and_aircraft_waypoints_follow_turns(tmp_path,
+                                                                              capsys):
+    """Two altitudes on the small polygon: each gets its own fewest lines, the quickest
+    feasible one is chosen (ties: the better covered). Then the same area flown by an
+    aircraft (a child mission replacing the UAV): its mission.plan follows the simulated
+    Dubins turns within the 2 m waypoint tolerance."""
+    out = tmp_path / "plan"
+    code = main(["plan", str(UAV), "--cell-m", "100", "--min-covered", "0.9", "--out", str(out),
+                 "--vary", "platform.uav.altitude_m=80,200", "--set", *SMALL, "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0
+    feasible = [c for c in report["candidates"] if c["feasible"]]
+    quickest = min(c["flight_time_s"] for c in feasible)
+    assert report["chosen"]["flight_time_s"] == quickest
+    assert {c["overrides"]["platform.uav.altitude_m"] for c in report["candidates"]} == {80, 200}
+    air = tmp_path / "aircraft.toml"
+    air.write_text(f'extends = "{UAV.as_posix()}"\n[platform]\nkind = "aircraft"\n'
+                   '[platform.aircraft]\ncoordinates = "scene_centre"\n'
+                   'survey_polygon_m = [[-300.0, -200.0], [300.0, -200.0], [300.0, 200.0], '
+                   '[-300.0, 200.0]]\nline_spacing_m = 100.0\nheading_deg = 90.0\n'
+                   'speed_mps = 40.0\naltitude_m = 700.0\nturn_radius_m = 150.0\n')
+    code = main(["plan", str(air), "--cell-m", "100", "--min-covered", "0.5", "--out",
+                 str(tmp_path / "air")])
+    capsys.readouterr()
+    from chirplidar.geometry import frames
+    from chirplidar.mission.runner import prepare
+
+    _, scene, plan = prepare(tmp_path / "air" / "mission.toml")
+    wp = read_qgc_plan(tmp_path / "air" / "mission.plan")
+    lat, lon, _ = frames.projected_to_geodetic(
+        *plan.path.positions(np.linspace(0, plan.path.duration_s, 2000))[:, :2].T,
+        np.zeros(2000), scene.epsg)
+    xy = np.column_stack(frames.geodetic_to_projected(lat, lon, np.zeros(2000), scene.epsg)[:2])
+    wxy = np.column_stack(frames.geodetic_to_projected(wp[:, 1], wp[:, 0], np.zeros(len(wp)),
+                                                       scene.epsg)[:2])
+    route = shapely.geometry.LineString(wxy)
+    # 2 m of Douglas-Peucker on samples 0.5 s (20 m) apart, plus the sagitta of a 20 m chord
+    # of the 150 m turn between samples (20^2 / (8 x 150) = 0.33 m)
+    assert max(route.distance(shapely.geometry.Point(p)) for p in xy) < 2.0 + 20.0 ** 2 / 1200
 
 
 def test_endurance_bounds_the_plan(tmp_path, capsys):

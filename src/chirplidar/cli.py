@@ -390,13 +390,16 @@ def _coverage_map(cov, args, png):
 
 def format_coverage_summary(s: dict) -> str:
     def m(v):
-        return "n/a" if v is None or not math.isfinite(v) else f"{v:.3g} m"
+        if v is None or not math.isfinite(v):
+            return "n/a"
+        return f"{v / 1e3:.3g} km" if abs(v) >= 1e4 else f"{v:.3g} m" if abs(v) < 1e3 \
+            else f"{v:.0f} m"
 
     region = s["region"]
     where = region.get("file", region["kind"])
     lines = [
-        f"chirplidar coverage: {len(s['files'])} file(s), {s['shots']} shots "
-        f"({s['detected_shots']} detected), cells of {s['cell_m']:g} m, region {where} "
+        f"chirplidar coverage: {len(s['files'])} file(s), {s['shots']} shots with a surface "
+        f"in the beam ({s['detected_shots']} detected), cells of {s['cell_m']:g} m, region {where} "
         f"(EPSG:{region['epsg']})",
         f"  covered          {s['cells_covered']} of {s['cells_in_region']} cells "
         f"({100 * s['fraction_covered']:.1f} %) with >= {s['min_detections']} detection(s)",

@@ -160,12 +160,19 @@ def region_from_geojson(path) -> Region:
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{p}: bad {kind(obj)} coordinates ({exc})") from None
     lon0, lat0, lon1, lat1 = geom.bounds
+    if lon1 - lon0 > 180 and lon0 <= -180.0 + 1e-9 and lon1 >= 180.0 - 1e-9:
+        # RFC 7946 3.1.9 splits a region at the antimeridian: put its western parts east of 180
+        east = shapely.transform(geom, lambda a: np.column_stack(
+            [np.where(a[:, 0] < 0, a[:, 0] + 360.0, a[:, 0]), a[:, 1]]))
+        geom = shapely.union_all(shapely.get_parts(east))   # the two halves joined again
+        lon0, lat0, lon1, lat1 = geom.bounds
     if not (geom.is_valid and geom.area > 0):
         raise ValueError(f"{p}: the {kind(obj)} is not a valid polygon of non-zero area"
                          f" ({shapely.is_valid_reason(geom)})")
     if lat0 < -90 or lat1 > 90 or lon1 - lon0 > 180:
-        raise ValueError(f"{p}: coordinates must be WGS-84 lon, lat in degrees, not crossing "
-                         f"the antimeridian (lon {lon0:g}..{lon1:g}, lat {lat0:g}..{lat1:g})")
+        raise ValueError(f"{p}: coordinates must be WGS-84 lon, lat in degrees, spanning less "
+                         f"than 180 deg of longitude (lon {lon0:g}..{lon1:g}, lat "
+                         f"{lat0:g}..{lat1:g}); split at the antimeridian as RFC 7946 does")
     geom = shapely.segmentize(geom, 0.005)
     centre = ((lon0 + lon1) / 2, (lat0 + lat1) / 2)
     for _ in range(2):   # centre on the projected centroid (the lon/lat one is distorted)

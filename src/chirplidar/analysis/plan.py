@@ -9,31 +9,33 @@ Example::
 
 Requirement (over the mission's survey polygon, :mod:`chirplidar.analysis.coverage`): at least
 ``min_covered`` of the cells of ``cell_m`` hold ``min_detections`` detected shots, and (when
-given) the median over the cells of one shot's measured height error (the coverage summary's
-``median_height_precision_m``) is at most ``max_height_precision_m``. A plan must also fit the
-platform: the whole path within ``platform.<kind>.endurance_s``; a UAV following the terrain
-flies the climb-limited profile of ``max_climb_mps`` / ``max_descent_mps`` (its clearance range
-is reported); an aircraft turns on ``turn_radius_m`` (the turns are in its flight time).
+given) the median over the covered cells of the precision of the cell's mean height (the grid's
+``height_precision_measured``: one shot's height error over sqrt(N)) is at most
+``max_height_precision_m``. A plan must also fit the platform: the whole path within
+``platform.<kind>.endurance_s``; a UAV following the terrain flies the climb-limited profile of
+``max_climb_mps`` / ``max_descent_mps`` (its clearance range is reported); an aircraft turns on
+``turn_radius_m`` (the turns are in its flight time and its waypoints).
 
 Search. Every candidate is a full run of the mission (a temporary file) and its coverage: the
 plan stands on the simulation, not on a geometric rule. Its covered fraction is the lower of two
 grids, the region's and one shifted by half a cell in x and y: lines that fall on cell edges
 cover both neighbouring rows in one grid, one row in the other, and a plan must not depend on
-where the grid's lines fall. For each combination of the ``--vary``
-values the line spacing is found by bisection on a log scale: coverage falls as the lines spread
-(the property the bisection relies on), flight time falls too, so the widest spacing that meets
-the requirement is the quickest. It starts at one cell (a nadir line covers a strip about one
-cell wide), doubles or halves the spacing until the requirement flips (not below an eighth of
-a cell: denser lines add nothing to a cell's coverage), then bisects; it stops when the bracket
-is within 8 % (a spacing up to 8 % narrower than the widest feasible one). Among the combinations
-the feasible candidate of least flight time wins; if none is feasible, the report gives the best
-coverage any candidate achieved and why each fell short.
+where the grid's lines fall. What is searched is the number of lines n across the polygon
+(spacing = its width across the lines / n): flight time grows with n, and so do coverage and
+a cell's precision (the property the bisection relies on), so the fewest lines that meet the
+requirement are the quickest plan. It starts from lines one cell apart (a nadir line covers a
+strip about one cell wide), halves or doubles n until the requirement flips (not beyond lines
+an eighth of a cell apart: denser ones add nothing to a cell's coverage), then bisects to the
+fewest lines. Among the ``--vary`` combinations the feasible candidate of least flight time wins
+(ties: the better covered); if none is feasible, the report gives the best coverage any candidate
+achieved and why it fell short.
 
 Outputs (``write_plan``): ``mission.toml`` (``extends`` the mission, with the chosen keys, so
-``run`` then ``coverage`` verify the plan), ``plan.geojson`` (lines and waypoints in WGS-84,
-opens in QGIS), ``mission.plan`` (QGroundControl: takeoff, waypoints, return to launch) and
-``plan.json`` (requirement, choice, candidates). Waypoints follow the flight profile: the line
-ends and the profile's vertices where its slope changes (Douglas-Peucker, 2 m).
+``run`` then ``coverage`` verify the plan), ``plan.geojson`` (lines and waypoints in WGS-84, with
+ellipsoidal heights; opens in QGIS), ``mission.plan`` (QGroundControl: takeoff, waypoints, return
+to launch) and ``plan.json`` (requirement, choice, candidates). The waypoints follow the simulated
+flight within 2 m across track and in height (Douglas-Peucker on the path sampled every 0.5 s:
+line ends, turn arcs, the terrain profile's changes of slope).
 """
 
 from __future__ import annotations
@@ -55,8 +57,8 @@ from .study import parse_vary, toml_literal
 
 __all__ = ["Candidate", "PlanResult", "Requirement", "find_plan", "format_plan", "write_plan"]
 
-BRACKET_RATIO = 1.08          # stop when the spacing bracket is this narrow
-WAYPOINT_TOLERANCE_M = 2.0    # vertical tolerance of the waypoints' fit to the flight profile
+WAYPOINT_TOLERANCE_M = 2.0    # the waypoints' path within this of the simulated one [m]
+WAYPOINT_STEP_S = 0.5         # the simulated path sampled this often for the waypoints
 MAX_EVALUATIONS = 14          # per combination: the bracket's widening and bisection
 
 
@@ -87,7 +89,7 @@ class Candidate:
     line_spacing_m: float
     flight_time_s: float
     fraction_covered: float = float("nan")
-    median_height_precision_m: float = float("nan")
+    median_cell_precision_m: float = float("nan")   # of a covered cell's mean height
     shots: int = 0
     shortfalls: list = field(default_factory=list)   # why it does not meet the requirement
     profile: dict | None = None         # the UAV's clearance and vertical-rate range
@@ -146,20 +148,23 @@ def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, w
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             run_mission(mission, overrides=sets, out=out, workers=workers)
-        s = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections).summary
+        grid = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections)
+        s = grid.summary
+        prec = grid.grid["height_precision_measured"].values[grid.grid["covered"].values == 1]
+        prec = prec[np.isfinite(prec)]
         half = 0.5 * req.cell_m   # a plan must not hang on where the grid's lines fall
         shifted = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections,
                                    grid_shift_m=(half, half)).summary
     cand.fraction_covered = min(float(s["fraction_covered"]), float(shifted["fraction_covered"]))
-    cand.median_height_precision_m = float(s["median_height_precision_m"])
+    cand.median_cell_precision_m = float(np.median(prec)) if prec.size else float("nan")
     cand.shots = int(s["shots"])
     if not cand.fraction_covered >= req.min_covered:
         cand.shortfalls.append(f"covers {cand.fraction_covered:.3f} of the {req.cell_m:g} m "
                                f"cells, below {req.min_covered:g}")
     p = req.max_height_precision_m
-    if p is not None and not cand.median_height_precision_m <= p:
-        cand.shortfalls.append(f"median height precision {cand.median_height_precision_m:.3g} m"
-                               f" above {p:g} m")
+    if p is not None and not cand.median_cell_precision_m <= p:
+        cand.shortfalls.append(f"median precision of a cell's mean height "
+                               f"{cand.median_cell_precision_m:.3g} m above {p:g} m")
     if progress is not None:
         keys = ", ".join(f"{k.rsplit('.', 1)[-1]}={v:g}" if isinstance(v, float) else
                          f"{k.rsplit('.', 1)[-1]}={v}" for k, v in over.items())
@@ -173,43 +178,60 @@ def _coverage_ok(c: Candidate, req: Requirement) -> bool:
     """The spacing-dependent part of the requirement (bisection's predicate)."""
     p = req.max_height_precision_m
     return c.fraction_covered >= req.min_covered and (
-        p is None or c.median_height_precision_m <= p)
+        p is None or c.median_cell_precision_m <= p)
 
 
-def _search_spacing(evaluate, key: str, combo: dict, req: Requirement) -> list[Candidate]:
-    """Candidates of one combination: from one cell, doubling or halving the spacing until the
-    requirement flips, then bisecting the bracket (module docstring)."""
+def _search_lines(evaluate, key: str, combo: dict, req: Requirement,
+                  extent_m: float) -> list[Candidate]:
+    """Candidates of one combination (module docstring): the number of lines n, spacing
+    extent / n (rounded up to the millimetre, so the lawnmower lays exactly n), from the count
+    that puts lines one cell apart, halved or doubled until the requirement flips, then
+    bisected to the fewest lines that meet it."""
     seen: list[Candidate] = []
+    n_max = max(1, math.ceil(extent_m / (req.cell_m / 8)))   # denser adds nothing to a cell
 
-    def ok(s) -> bool:
-        c = evaluate({**combo, key: round(float(s), 3)})
+    def ok(n: int) -> bool:
+        c = evaluate({**combo, key: math.ceil(extent_m / n * 1000.0) / 1000.0})
         seen.append(c)
         return _coverage_ok(c, req)
 
-    s = req.cell_m
-    if ok(s):
-        lo, hi = s, None
-        while hi is None and len(seen) < MAX_EVALUATIONS:
-            if ok(lo * 2.0):
-                lo *= 2.0
+    n = max(1, math.ceil(extent_m / req.cell_m - 1e-9))
+    if ok(n):
+        lo, hi = None, n                  # lo: a count that fails, hi: one that meets it
+        while lo is None and hi > 1 and len(seen) < MAX_EVALUATIONS:
+            if ok(hi // 2):
+                hi //= 2
             else:
-                hi = lo * 2.0
+                lo = hi // 2
+        if lo is None:
+            return seen                   # one line meets it
     else:
-        lo, hi = None, s
-        while lo is None and hi > req.cell_m / 8 and len(seen) < MAX_EVALUATIONS:
-            if ok(hi / 2.0):
-                lo = hi / 2.0
+        lo, hi = n, None
+        while hi is None and lo < n_max and len(seen) < MAX_EVALUATIONS:
+            if ok(min(2 * lo, n_max)):
+                hi = min(2 * lo, n_max)
             else:
-                hi /= 2.0
-    if lo is None or hi is None:
-        return seen                  # never met (or met at any spacing tried)
-    while hi / lo > BRACKET_RATIO and len(seen) < MAX_EVALUATIONS:
-        mid = math.sqrt(lo * hi)
+                lo = min(2 * lo, n_max)
+        if hi is None:
+            return seen                   # not even the densest lines meet it
+    while hi - lo > 1 and len(seen) < MAX_EVALUATIONS:
+        mid = (lo + hi) // 2
         if ok(mid):
-            lo = mid
-        else:
             hi = mid
+        else:
+            lo = mid
     return seen
+
+
+def _extent_across(config, kind: str) -> float:
+    """Width [m] of the survey polygon across its lines (what the lawnmower's lines share)."""
+    from shapely import affinity
+    from shapely.geometry import Polygon
+
+    sec = config.platform.uav if kind == "uav" else config.platform.aircraft
+    ang = math.pi / 2 - math.radians(sec.heading_deg)
+    rot = affinity.rotate(Polygon(sec.survey_polygon_m), -ang, origin=(0, 0), use_radians=True)
+    return float(rot.bounds[3] - rot.bounds[1])
 
 
 def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
@@ -235,37 +257,55 @@ def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
     for combo in combos:
         if progress is not None and combo:
             progress(f"plan: {', '.join(f'{k}={v}' for k, v in combo.items())}")
+        with_combo = load_mission(mission, list(overrides) + [f"{k}={toml_literal(v)}"
+                                                              for k, v in combo.items()])
 
         def evaluate(over):
             return _evaluate(mission, overrides, over, req, endurance, workdir, workers,
                              progress)
 
-        cands += _search_spacing(evaluate, key, combo, req)
+        cands += _search_lines(evaluate, key, combo, req, _extent_across(with_combo, kind))
     feasible = [c for c in cands if c.feasible]
-    best = min(feasible, key=lambda c: c.flight_time_s) if feasible else None
+    # the quickest; among equally quick ones, the best covered (then the finest precision)
+    best = min(feasible, key=lambda c: (c.flight_time_s, -c.fraction_covered,
+                                        c.median_cell_precision_m)) if feasible else None
     closest = max(cands, key=lambda c: (c.fraction_covered, -c.flight_time_s))
     return PlanResult(mission, req, list(overrides), cands, best, closest, kind, endurance)
 
 
 # ------------------------------------------------------------------------------------ output
 def _waypoints(path, epsg: int) -> np.ndarray:
-    """(m, 3) lon, lat, ellipsoidal height of the flight's waypoints (module docstring)."""
+    """(m, 3) lon, lat, ellipsoidal height of waypoints that follow the simulated flight: the
+    path sampled every WAYPOINT_STEP_S, thinned (Douglas-Peucker) to the vertices that keep it
+    within WAYPOINT_TOLERANCE_M across track and in height (corners, turn arcs, the terrain
+    profile's changes of slope), the first and last kept."""
     from shapely.geometry import LineString
 
     from ..geometry import frames
-    from ..geometry.platform import AircraftLines
 
-    if isinstance(path, AircraftLines):
-        xy = np.array([p for a, b in path.lines for p in (a, b)])
-        z = np.full(len(xy), path.altitude_m)
-    else:
-        s, z = path.height_profile(step_m=5.0)
-        keep = LineString(np.column_stack([s, z])).simplify(WAYPOINT_TOLERANCE_M)
-        at = np.union1d(np.asarray(keep.coords)[:, 0], path._cum_m)
-        pos = path.positions(np.clip(at / path.speed_mps, 0.0, path.duration_s))
-        xy, z = pos[:, :2], pos[:, 2]
+    t = np.union1d(np.arange(0.0, path.duration_s, WAYPOINT_STEP_S), [path.duration_s])
+    pos = path.positions(t)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1))])
+    keep = np.zeros(t.size, bool)
+    keep[[0, -1]] = True
+    for line in (pos[:, :2], np.column_stack([s, pos[:, 2]])):   # across track, in height
+        thin = np.asarray(LineString(line).simplify(WAYPOINT_TOLERANCE_M,
+                                                   preserve_topology=False).coords)
+        keep[_vertex_indices(line, thin)] = True
+    xy, z = pos[keep, :2], pos[keep, 2]
     lat, lon, _ = frames.projected_to_geodetic(xy[:, 0], xy[:, 1], np.zeros(len(xy)), epsg)
     return np.column_stack([lon, lat, z])
+
+
+def _vertex_indices(line: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Indices in ``line`` of the vertices ``kept`` (shapely's simplify keeps a subsequence of
+    them, in order)."""
+    out, j = np.empty(len(kept), int), 0
+    for k, v in enumerate(kept):          # one pass: the kept vertices come in line order
+        while j < len(line) - 1 and not np.array_equal(line[j], v):
+            j += 1
+        out[k] = j
+    return out
 
 
 def _lines_lonlat(config, scene, kind: str, epsg: int) -> list:
@@ -322,7 +362,8 @@ def write_plan(result: PlanResult, out_dir, *, overwrite: bool = False) -> dict:
                   {"mission": result.mission.name, "line_spacing_m": chosen.line_spacing_m,
                    "flight_time_s": chosen.flight_time_s,
                    "fraction_covered": chosen.fraction_covered,
-                   "meets_requirement": result.best is not None})
+                   "meets_requirement": result.best is not None,
+                   "height_datum": "WGS-84 ellipsoid"})
     write_qgc_plan(paths["qgc"], wp, home, cruise_speed_mps=sec.speed_mps,
                    vehicle_type="fixed_wing")
     paths["json"].write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
@@ -356,7 +397,8 @@ def format_plan(result: PlanResult) -> str:
              f"  keys             {keys}",
              f"  covered          {c.fraction_covered:.3f} of the {req.cell_m:g} m cells "
              f"(>= {req.min_detections} detection(s); required {req.min_covered:g})",
-             f"  height precision {c.median_height_precision_m:.3g} m per shot (median)"
+             f"  height precision {c.median_cell_precision_m:.3g} m for a cell's mean height "
+             f"(median over the covered cells)"
              + ("" if req.max_height_precision_m is None
                 else f"; required <= {req.max_height_precision_m:g} m"),
              f"  flight time      {c.flight_time_s:.0f} s"

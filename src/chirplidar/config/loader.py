@@ -159,13 +159,17 @@ def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
 
 #: Keys that name files, relative to the mission file that sets them.
 PATH_KEYS = ("scene.file",)
+#: The platform sections, of which a mission has one.
+PLATFORM_SECTIONS = frozenset({"platform.uav", "platform.aircraft", "platform.orbit",
+                               "platform.tle"})
 
 
 def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     """The mission file as canonical dotted keys (thesis names translated).
 
     A top-level ``extends = "other.toml"`` (relative to this file) loads that file first and lets
-    this one override it key by key, so a variant states only what differs and why.
+    this one override it key by key, so a variant states only what differs and why; a
+    ``[platform.X]`` section here replaces the parent's other platform sections.
     """
     path = Path(path)
     try:
@@ -192,6 +196,12 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
         value = base.get(key)
         if isinstance(value, str) and not Path(value).is_absolute():
             base[key] = os.path.relpath(base_path.parent / value, path.parent.resolve())
+    # A child that flies another platform replaces the parent's: its [platform.X] drops the
+    # parent's other platform sections (they are alternatives, only one may be present).
+    chosen = {sec for sec in PLATFORM_SECTIONS if any(k.startswith(sec + ".") for k in flat)}
+    if chosen:
+        base = {k: v for k, v in base.items()
+                if not any(k.startswith(sec + ".") for sec in PLATFORM_SECTIONS - chosen)}
     return {**base, **flat}
 
 

@@ -685,7 +685,7 @@ class TleOrbit:
         :data:`TLE_MAX_AGE_DAYS` from the TLE epoch."""
         age = np.array([t0_s, t1_s]) / 86400.0 + self.epoch_mjd - self.tle_epoch_mjd
         if np.max(np.abs(age)) > TLE_MAX_AGE_DAYS:
-            raise ValueError(f"{key}: the window reaches {np.max(np.abs(age)):.0f} days from the "
+            raise ValueError(f"{key}: the window reaches {np.max(np.abs(age)):.1f} days from the "
                              f"TLE epoch; SGP4 is not trusted beyond {TLE_MAX_AGE_DAYS:.0f} days "
                              "(its error grows by km per day): use an element set from the "
                              "window's time")

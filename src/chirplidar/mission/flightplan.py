@@ -66,6 +66,9 @@ def _write_json_atomic(path, obj) -> None:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        umask = os.umask(0)   # mkstemp makes 0600; a plan is as readable as any written file
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

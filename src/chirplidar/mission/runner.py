@@ -725,12 +725,16 @@ def format_summary(s: dict) -> str:
         + "".join(f", {s[k]} {text}" for k, text in (
             ("outside_range_window", "outside the range window"),
             ("doppler_displaced", "displaced by an uncompensated Doppler shift")) if s.get(k)),
-        f"  median SNR       {s['median_snr_db']:.1f} dB (detected shots)",
-        f"  range error      mean {s['range_error_mean_m'] * 100:.2f} cm, std "
-        f"{s['range_error_std_m'] * 100:.2f} cm, RMS {s['range_error_rms_m'] * 100:.2f} cm, "
-        f"95 % |err| < {s['range_error_p95_abs_m'] * 100:.2f} cm",
-        f"  output           {s['output']}",
     ]
+    if s["detected"]:
+        lines += [
+            f"  median SNR       {s['median_snr_db']:.1f} dB (detected shots)",
+            f"  range error      mean {s['range_error_mean_m'] * 100:.2f} cm, std "
+            f"{s['range_error_std_m'] * 100:.2f} cm, RMS {s['range_error_rms_m'] * 100:.2f} cm, "
+            f"95 % |err| < {s['range_error_p95_abs_m'] * 100:.2f} cm"]
+    else:
+        lines.append("  no shot detected: no SNR or range-error statistics")
+    lines.append(f"  output           {s['output']}")
     return "\n".join(lines)
 
 
