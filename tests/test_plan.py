@@ -128,6 +128,11 @@ def test_endurance_bounds_the_plan(tmp_path, capsys):
                  str(tmp_path / "p"), "--set", *SMALL, "platform.uav.endurance_s=60"])
     out = capsys.readouterr().out
     assert code == 1 and "exceeds the endurance 60 s" in out
+    # a UAV turning on 80 m cannot fly lines 100 m apart (a U-turn needs 160 m)
+    code = main(["plan", str(UAV), "--cell-m", "100", "--min-covered", "0.95", "--out",
+                 str(tmp_path / "q"), "--set", *SMALL, "platform.uav.turn_radius_m=80"])
+    out = capsys.readouterr().out
+    assert code == 1 and "closer than twice the UAV's turn radius 80 m" in out
 
 
 @pytest.mark.parametrize(("args", "match"), [

@@ -81,6 +81,9 @@ def test_icesat2_beam_pattern_from_the_output(tmp_path):
     k = frames.scale_factor(x.mean(), y.mean(), 3031)
     a = (x * across[0] + y * across[1]).mean(axis=1) / k         # per beam, ground metres
     s = (x * along[0] + y * along[1]).mean(axis=1) / k
+    # 10 kHz and ~496 km above the ellipsoid (ICESat-2): the shot clock and the platform height
+    assert np.diff(ds["delta_time"].values[0]) == pytest.approx(np.full(px.size - 1, 1e-4))
+    assert float(np.median(ds["platform_altitude"].values)) == pytest.approx(496e3, rel=0.02)
     centres = 0.5 * (a[0::2] + a[1::2])
     assert np.abs(np.diff(centres)) == pytest.approx([3300.0, 3300.0], rel=0.02)
     assert np.abs(a[1::2] - a[0::2]) == pytest.approx([90.0] * 3, rel=0.02)

@@ -13,8 +13,9 @@ given) the median over the covered cells of the precision of the cell's mean hei
 ``height_precision_measured``: one shot's height error over sqrt(N)) is at most
 ``max_height_precision_m``. A plan must also fit the platform: the whole path within
 ``platform.<kind>.endurance_s``; a UAV following the terrain flies the climb-limited profile of
-``max_climb_mps`` / ``max_descent_mps`` (its clearance range is reported); an aircraft turns on
-``turn_radius_m`` (the turns are in its flight time and its waypoints).
+``max_climb_mps`` / ``max_descent_mps`` (its clearance range is reported) and cannot fly lines
+closer than twice its ``turn_radius_m`` (when given); an aircraft turns on ``turn_radius_m`` (the
+turns are in its flight time and its waypoints).
 
 Search. Every candidate is a full run of the mission (a temporary file) and its coverage: the
 plan stands on the simulation, not on a geometric rule. Its covered fraction is the lower of two
@@ -135,11 +136,17 @@ def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, w
     sets = list(base) + [f"{k}={toml_literal(v)}" for k, v in over.items()]
     with warnings.catch_warnings():   # endurance: judged below, as a shortfall
         warnings.simplefilter("ignore", UserWarning)
-        _, _, plan = prepare(mission, overrides=sets)
+        config, _, plan = prepare(mission, overrides=sets)
+    kind = config.platform.kind
     spacing = next(v for k, v in over.items() if k.endswith(".line_spacing_m"))
     cand = Candidate(dict(over), float(spacing), float(plan.path.duration_s))
     if hasattr(plan.path, "profile_report"):
         cand.profile = plan.path.profile_report()
+    radius = getattr(_flight_section(config)[1], "turn_radius_m", None) if kind == "uav" \
+        else None
+    if radius is not None and spacing < 2 * radius:
+        cand.shortfalls.append(f"lines {spacing:g} m apart, closer than twice the UAV's turn "
+                               f"radius {radius:g} m: no U-turn from one to the next")
     if endurance is not None and cand.flight_time_s > endurance:
         cand.shortfalls.append(f"flight time {cand.flight_time_s:.0f} s exceeds the endurance "
                                f"{endurance:g} s")

@@ -467,6 +467,9 @@ class UavPlatform(_Survey2D):
                                           "descent rate")
     endurance_s: float | None = Field(None, gt=0, description="longest flight the platform can "
                                       "make (a run warns beyond it; plan keeps within it)")
+    turn_radius_m: float | None = Field(None, gt=0, description="smallest turn radius: the "
+                                        "path turns at its waypoints; plan refuses lines "
+                                        "closer than twice it (no U-turn between them)")
 
     @model_validator(mode="after")
     def _climb_limits(self):
