@@ -84,3 +84,19 @@ def test_campaign_window_is_for_satellites(tmp_path):
                        overrides=["survey.start_utc=2026-10-05T00:00:00Z",
                                   "survey.stop_utc=2026-10-06T00:00:00Z"],
                        cache_dir=tmp_path / "cache")
+
+
+def test_shot_finds_a_campaign_shot_in_its_own_pass(month, tmp_path):
+    """`chirplidar shot --at-s T` on a campaign: chunks start with each pass (not every
+    chunk_shots), so the shot at T is looked up by the plan's chunk starts."""
+    from chirplidar.mission.shot import mission_shot_config
+
+    cfg, scene, plan = month
+    last = np.flatnonzero(plan.track_of(plan.t_s) == len(plan.pass_starts_s) - 1)[::20]
+    g = survey.chunk_geometry(plan, scene, cfg, plan.t_s[last], np.random.SeedSequence(0), 1)
+    k = int(last[np.flatnonzero(np.isfinite(g.range_true_m[:, 0]))[0]])   # beam 0 on terrain
+    assert plan.locate(k)[0] > 0 and plan.locate(k)[1] != k % cfg.survey.chunk_shots
+    shot = mission_shot_config(CAMPAIGN, tier="link", at_s=float(plan.t_s[k]),
+                               overrides=MONTH)
+    assert shot.geometry["shot_index"] == k
+    assert shot.geometry["t_s"] == pytest.approx(plan.t_s[k])

@@ -105,12 +105,12 @@ def test_icesat2_beam_pattern_from_the_output(tmp_path):
 
 def test_narrow_window_flags_instead_of_aliasing(tmp_path):
     """A 300 m window over ~1.4 km of relief: the returns beyond it are flagged
-    outside_range_window (3), none is counted as detected with a wrong range."""
+    outside_range_gate (3), none is counted as detected with a wrong range."""
     res = run_mission(ICESAT, overrides=SPAN + ["survey.range_window_m=300"],
                       out=tmp_path / "w.nc", cache_dir=tmp_path / "cache")
     ds = read_netcdf(res.path)
     det = ds["detected"].values
-    assert res.summary["outside_range_window"] == int(np.sum(det == 3)) > 0
+    assert res.summary["outside_range_gate"] == int(np.sum(det == 3)) > 0
     assert np.max(np.abs(ds["range_error"].values[det == 1])) < 10.0
     assert np.all(np.isnan(ds["range_measured"].values[det == 3]))
 

@@ -915,7 +915,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-detections", type=int, default=1, metavar="K",
                    help="detected shots a cell needs to count as covered (default 1)")
     p.add_argument("--max-height-precision-m", type=float, default=None, metavar="S",
-                   help="largest median height error of one shot over the cells [m]")
+                   help="largest precision of a cell's mean height (one shot's error over "
+                        "sqrt(N); median over the covered cells) [m]")
     p.add_argument("--vary", action="append", default=[], metavar="KEY=START:STOP:N",
                    help="also choose this key (altitude, speed, heading, ...): its values as "
                         "study takes them; at most two")

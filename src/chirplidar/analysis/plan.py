@@ -35,8 +35,9 @@ Outputs (``write_plan``): ``mission.toml`` (``extends`` the mission, with the ch
 ``run`` then ``coverage`` verify the plan), ``plan.geojson`` (lines and waypoints in WGS-84, with
 ellipsoidal heights; opens in QGIS), ``mission.plan`` (QGroundControl: takeoff, waypoints, return
 to launch) and ``plan.json`` (requirement, choice, candidates). The waypoints follow the simulated
-flight within 2 m across track and in height (Douglas-Peucker on the path sampled every 0.5 s:
-line ends, turn arcs, the terrain profile's changes of slope).
+flight: the path sampled every 0.5 s, thinned by Douglas-Peucker to 2 m across track and,
+separately, in height (line ends, turn arcs, the terrain profile's changes of slope); the union
+of the two can stray a little further (a few metres).
 """
 
 from __future__ import annotations
@@ -116,22 +117,26 @@ class PlanResult:
         return self.best if self.best is not None else self.closest
 
 
-def _flight_section(config):
-    pf = config.platform
-    if pf is None or pf.kind not in ("uav", "aircraft"):
+def _lawnmower_section(config):
+    """(kind, [platform.uav] or [platform.aircraft]) of a lawnmower survey; ConfigError for a
+    satellite or a waypoint path."""
+    from ..mission.survey import _flight_section
+
+    sec = _flight_section(config) if config.platform is not None else None
+    if sec is None:
         raise ConfigError("plan is for UAV and aircraft missions (platform.kind = 'uav' or "
                           "'aircraft'); for satellites see `chirplidar passes`")
-    sec = pf.uav if pf.kind == "uav" else pf.aircraft
+    kind = config.platform.kind
     if sec.survey_polygon_m is None:
-        raise ConfigError(f"plan chooses the lawnmower over platform.{pf.kind}.survey_polygon_m;"
+        raise ConfigError(f"plan chooses the lawnmower over platform.{kind}.survey_polygon_m;"
                           " this mission flies waypoints")
-    return pf.kind, sec
+    return kind, sec
 
 
 def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, workers,
               progress) -> Candidate:
     from ..mission.runner import prepare, run_mission
-    from .coverage import compute_coverage
+    from .coverage import CoverageError, compute_coverage
 
     sets = list(base) + [f"{k}={toml_literal(v)}" for k, v in over.items()]
     with warnings.catch_warnings():   # endurance: judged below, as a shortfall
@@ -142,8 +147,7 @@ def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, w
     cand = Candidate(dict(over), float(spacing), float(plan.path.duration_s))
     if hasattr(plan.path, "profile_report"):
         cand.profile = plan.path.profile_report()
-    radius = getattr(_flight_section(config)[1], "turn_radius_m", None) if kind == "uav" \
-        else None
+    radius = _lawnmower_section(config)[1].turn_radius_m if kind == "uav" else None
     if radius is not None and spacing < 2 * radius:
         cand.shortfalls.append(f"lines {spacing:g} m apart, closer than twice the UAV's turn "
                                f"radius {radius:g} m: no U-turn from one to the next")
@@ -155,13 +159,19 @@ def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, w
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             run_mission(mission, overrides=sets, out=out, workers=workers)
-        grid = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections)
-        s = grid.summary
-        prec = grid.grid["height_precision_measured"].values[grid.grid["covered"].values == 1]
-        prec = prec[np.isfinite(prec)]
-        half = 0.5 * req.cell_m   # a plan must not hang on where the grid's lines fall
-        shifted = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections,
-                                   grid_shift_m=(half, half)).summary
+        try:
+            grid = compute_coverage([out], cell_m=req.cell_m, min_detections=req.min_detections)
+            half = 0.5 * req.cell_m   # a plan must not hang on where the grid's lines fall
+            shifted = compute_coverage([out], cell_m=req.cell_m,
+                                       min_detections=req.min_detections,
+                                       grid_shift_m=(half, half)).summary
+        except CoverageError as exc:   # e.g. no shot detected at all: nothing covered
+            cand.fraction_covered = 0.0
+            cand.shortfalls.append(str(exc))
+            return _report(cand, progress)
+    s = grid.summary
+    prec = grid.grid["height_precision_measured"].values[grid.grid["covered"].values == 1]
+    prec = prec[np.isfinite(prec)]
     cand.fraction_covered = min(float(s["fraction_covered"]), float(shifted["fraction_covered"]))
     cand.median_cell_precision_m = float(np.median(prec)) if prec.size else float("nan")
     cand.shots = int(s["shots"])
@@ -172,9 +182,13 @@ def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, w
     if p is not None and not cand.median_cell_precision_m <= p:
         cand.shortfalls.append(f"median precision of a cell's mean height "
                                f"{cand.median_cell_precision_m:.3g} m above {p:g} m")
+    return _report(cand, progress)
+
+
+def _report(cand: Candidate, progress) -> Candidate:
     if progress is not None:
         keys = ", ".join(f"{k.rsplit('.', 1)[-1]}={v:g}" if isinstance(v, float) else
-                         f"{k.rsplit('.', 1)[-1]}={v}" for k, v in over.items())
+                         f"{k.rsplit('.', 1)[-1]}={v}" for k, v in cand.overrides.items())
         progress(f"  {keys}: covered {cand.fraction_covered:.3f}, flight "
                  f"{cand.flight_time_s:.0f} s" + ("" if cand.feasible else
                                                    f" ({'; '.join(cand.shortfalls)})"))
@@ -230,15 +244,12 @@ def _search_lines(evaluate, key: str, combo: dict, req: Requirement,
     return seen
 
 
-def _extent_across(config, kind: str) -> float:
+def _extent_across(config) -> float:
     """Width [m] of the survey polygon across its lines (what the lawnmower's lines share)."""
-    from shapely import affinity
-    from shapely.geometry import Polygon
+    from ..geometry.platform import lawnmower_width
 
-    sec = config.platform.uav if kind == "uav" else config.platform.aircraft
-    ang = math.pi / 2 - math.radians(sec.heading_deg)
-    rot = affinity.rotate(Polygon(sec.survey_polygon_m), -ang, origin=(0, 0), use_radians=True)
-    return float(rot.bounds[3] - rot.bounds[1])
+    _, sec = _lawnmower_section(config)
+    return lawnmower_width(sec.survey_polygon_m, math.radians(sec.heading_deg))
 
 
 def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
@@ -249,14 +260,19 @@ def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
 
     mission = Path(mission)
     config = load_mission(mission, list(overrides))
-    kind, sec = _flight_section(config)
+    kind, sec = _lawnmower_section(config)
     key = f"platform.{kind}.line_spacing_m"
     axes = [parse_vary(v) for v in vary]
     if len(axes) > 2:
         raise ConfigError("--vary: at most two keys (with the line spacing the plan chooses)")
+    set_keys = {resolve_key(parse_set(t)[0]) for t in overrides}
+    if key in set_keys:
+        raise ConfigError(f"--set {key}: plan chooses the line spacing itself")
     for a in axes:
         if a.mission_key == key:
             raise ConfigError(f"--vary {a.spec}: plan chooses {key} itself")
+        if a.mission_key in set_keys:
+            raise ConfigError(f"--vary {a.spec}: {a.mission_key} is also given with --set")
     combos = [dict(zip([a.mission_key for a in axes], vals))
               for vals in itertools.product(*[a.values for a in axes])] or [{}]
     endurance = sec.endurance_s
@@ -266,12 +282,16 @@ def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
             progress(f"plan: {', '.join(f'{k}={v}' for k, v in combo.items())}")
         with_combo = load_mission(mission, list(overrides) + [f"{k}={toml_literal(v)}"
                                                               for k, v in combo.items()])
+        width = _extent_across(with_combo)
+        if req.cell_m > width:
+            raise ConfigError(f"--cell-m {req.cell_m:g}: wider than the survey polygon across "
+                              f"its lines ({width:.0f} m)")
 
         def evaluate(over):
             return _evaluate(mission, overrides, over, req, endurance, workdir, workers,
                              progress)
 
-        cands += _search_lines(evaluate, key, combo, req, _extent_across(with_combo, kind))
+        cands += _search_lines(evaluate, key, combo, req, width)
     feasible = [c for c in cands if c.feasible]
     # the quickest; among equally quick ones, the best covered (then the finest precision)
     best = min(feasible, key=lambda c: (c.flight_time_s, -c.fraction_covered,
@@ -283,9 +303,8 @@ def find_plan(mission, req: Requirement, *, vary=(), overrides=(), workers=None,
 # ------------------------------------------------------------------------------------ output
 def _waypoints(path, epsg: int) -> np.ndarray:
     """(m, 3) lon, lat, ellipsoidal height of waypoints that follow the simulated flight: the
-    path sampled every WAYPOINT_STEP_S, thinned (Douglas-Peucker) to the vertices that keep it
-    within WAYPOINT_TOLERANCE_M across track and in height (corners, turn arcs, the terrain
-    profile's changes of slope), the first and last kept."""
+    path sampled every WAYPOINT_STEP_S, thinned (Douglas-Peucker, WAYPOINT_TOLERANCE_M) across
+    track and, separately, in height; the union of both sets of vertices, first and last kept."""
     from shapely.geometry import LineString
 
     from ..geometry import frames
@@ -320,7 +339,7 @@ def _lines_lonlat(config, scene, kind: str, epsg: int) -> list:
     from ..geometry.platform import lawnmower_lines
     from ..mission.survey import survey_polygon_xy
 
-    sec = config.platform.uav if kind == "uav" else config.platform.aircraft
+    _, sec = _lawnmower_section(config)
     lines = lawnmower_lines(survey_polygon_xy(config, scene), sec.line_spacing_m,
                             math.radians(sec.heading_deg))
     out = []
@@ -352,9 +371,11 @@ def write_plan(result: PlanResult, out_dir, *, overwrite: bool = False) -> dict:
     lines = [f"# chirplidar plan: {result.mission.name} with the chosen keys "
              f"({'meets' if result.best else 'does NOT meet'} the requirement; plan.json)",
              f"extends = {json.dumps(Path(rel).as_posix())}", ""]
-    for text in sets:               # dotted TOML keys: the project's names, TOML literals
+    keys = {}                        # dotted TOML keys: the project's names, TOML literals
+    for text in sets:
         key, value = parse_set(text)
-        lines.append(f"{resolve_key(key)} = {toml_literal(value)}")
+        keys[resolve_key(key)] = value
+    lines += [f"{k} = {toml_literal(v)}" for k, v in keys.items()]
     paths["mission"].write_text("\n".join(lines) + "\n")
     config, scene, plan = prepare(paths["mission"])
     wp = _waypoints(plan.path, scene.epsg)
@@ -363,7 +384,7 @@ def write_plan(result: PlanResult, out_dir, *, overwrite: bool = False) -> dict:
         np.zeros(1))[0, :2]))])
     if not np.isfinite(home[2]):
         home[2] = float(np.mean(scene.height_range_m))
-    sec = config.platform.uav if result.kind == "uav" else config.platform.aircraft
+    _, sec = _lawnmower_section(config)
     summary = plan_summary(result)
     write_geojson(paths["geojson"], _lines_lonlat(config, scene, result.kind, scene.epsg), wp,
                   {"mission": result.mission.name, "line_spacing_m": chosen.line_spacing_m,

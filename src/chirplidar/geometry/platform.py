@@ -57,6 +57,7 @@ __all__ = [
     "conical_scan",
     "lawnmower",
     "lawnmower_lines",
+    "lawnmower_width",
     "nadir_beam",
     "paired_beams_across_track",
     "shot_geometry",
@@ -171,16 +172,6 @@ class UavPath:
                             self.speed_mps, self.max_climb_mps, self.max_descent_mps)
         return s, z, ground
 
-    def height_profile(self, step_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(distance along the path [m], flight height [m]): the climb-limited profile's
-        samples, else the path sampled every ``step_m`` (default ``profile_step_m``) with its
-        heights (the ground followed exactly, or the absolute altitude)."""
-        if self._profile is not None:
-            return self._profile[0].copy(), self._profile[1].copy()
-        step = _checks.positive("step_m", self.profile_step_m if step_m is None else step_m)
-        s = np.union1d(np.arange(0.0, self.length_m, step), self._cum_m)
-        return s, self.positions(s / self.speed_mps)[:, 2]
-
     def profile_report(self) -> dict | None:
         """Height above ground and vertical rates of the climb-limited profile
         (:func:`terrain_following.profile_report`), or None when the path follows the ground
@@ -273,6 +264,20 @@ def _polygon(polygon_xy) -> Polygon:
     return poly
 
 
+def _rotated_to_lines(poly: Polygon, heading_rad: float):
+    """The polygon rotated so that lines of ``heading_rad`` run along +x', and that angle."""
+    ang = np.pi / 2 - heading_rad   # the lines' direction from +x
+    return affinity.rotate(poly, -ang, origin=(0, 0), use_radians=True), ang
+
+
+def lawnmower_width(polygon_xy, heading_rad) -> float:
+    """Width [m] of the polygon across lines of ``heading_rad`` (see :func:`lawnmower_lines`):
+    a spacing of width / n lays exactly n lines."""
+    rot, _ = _rotated_to_lines(_polygon(polygon_xy),
+                               _checks.real_scalar("heading_rad", heading_rad))
+    return float(rot.bounds[3] - rot.bounds[1])
+
+
 def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     """Boustrophedon survey lines covering ``polygon_xy``; list of ``(start_xy, end_xy)``.
 
@@ -286,9 +291,7 @@ def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     poly = _polygon(polygon_xy)
     dx = _checks.positive("line_spacing_m", line_spacing_m)
     hdg = _checks.real_scalar("heading_rad", heading_rad)
-    # rotate so that lines run along +x': angle of the line direction from +x is pi/2 - heading
-    ang = np.pi / 2 - hdg
-    rot = affinity.rotate(poly, -ang, origin=(0, 0), use_radians=True)
+    rot, ang = _rotated_to_lines(poly, hdg)
     xmin, ymin, xmax, ymax = rot.bounds
     n = max(1, int(np.ceil((ymax - ymin) / dx - 1e-9)))
     y0 = 0.5 * (ymin + ymax) - 0.5 * (n - 1) * dx  # centre the strips on the extent
@@ -671,14 +674,6 @@ class TleOrbit:
     def epoch_mjd(self) -> float:
         """The run's time origin ``epoch_utc``, MJD (UTC)."""
         return float(self._epoch_mjd)
-
-    @property
-    def mean_motion_rad_s(self) -> float:
-        return float(self._sat.no_kozai / 60.0)
-
-    @property
-    def inclination_rad(self) -> float:
-        return float(self._sat.inclo)
 
     def check_window(self, t0_s: float, t1_s: float, key: str = "t_s") -> None:
         """ValueError naming ``key`` when [t0_s, t1_s] (s after ``epoch_utc``) reaches more than

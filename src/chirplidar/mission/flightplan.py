@@ -245,13 +245,16 @@ def read_qgc_plan(path) -> np.ndarray:
     Only NAV_WAYPOINT (16) ``SimpleItem`` entries are returned, in file order; the altitude is
     params[6] as written (relative to home for files from :func:`write_qgc_plan`).
     """
-    with open(path, encoding="utf-8") as f:
-        plan = json.load(f)
+    try:
+        with open(path, encoding="utf-8") as f:
+            plan = json.load(f)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a QGroundControl plan (not JSON: {exc})") from None
     try:
         items = plan["mission"]["items"]
         rows = [(it["params"][5], it["params"][4], it["params"][6]) for it in items
                 if it.get("type") == "SimpleItem" and it.get("command") == MAV_CMD_NAV_WAYPOINT]
     except (KeyError, IndexError, TypeError) as exc:
-        raise ValueError(f"path: not a QGroundControl plan with mission items ({exc!r})") from None
+        raise ValueError(f"{path}: not a QGroundControl plan with mission items ({exc!r})") from None
     out = np.array([[math.nan if v is None else float(v) for v in r] for r in rows], dtype=float)
     return out.reshape(-1, 3)

@@ -68,7 +68,8 @@ lines sit at |f_R + f_d| and |f_R - f_d| with equal power: the peak search takes
 inside the processed band (either, with equal chance, when both are), as the rf and baseband
 tiers do through their noise. Such a range is off by f_d / kappa: unless
 ``processing.doppler_recovery`` recovers it (rf tier), the return is flagged
-``doppler_displaced`` (``detected = 4``) whenever |f_d| exceeds the chirp's resolution 1 / T_chirp.
+``doppler_displaced`` (``detected = 4``) whenever the record resolves it (|f_d| T_ov >= 1, T_ov
+the chirps' overlap at the shot's lag).
 ``attitude.doppler_steering`` removes the shift at its source (beams in the body's across-track
 plane perpendicular to the velocity); ``survey.doppler_compensation = "lo_offset"`` shifts each
 beam's LO by its predicted Doppler (``ChunkGeometry.doppler_speed_mps`` is what is left).
@@ -82,7 +83,7 @@ which must lie in the processed band (:func:`check_range_window`):
 
     tau_ref = 2 n (R_p - W / 2) / c - f_hp / kappa
 
-A return outside the window is flagged ``outside_range_window`` (``detected = 3``): the
+A return outside the window is flagged ``outside_range_gate`` (``detected = 3``): the
 instrument does not look there, and its beat would alias or leave the band.
 """
 
@@ -524,12 +525,29 @@ def window_reference_delay_s(config, geom, r_mean_m):
     return ref, outside & np.isfinite(r_mean_m)
 
 
-def doppler_displaced(config, scene, geom, rate_hz_per_s: float, rise_s: float) -> np.ndarray:
-    """(n, b) shots whose Doppler shift the record resolves (|f_d| >= 1 / T_chirp: the line moves
-    by more than the range resolution) with nothing to recover it (module docstring)."""
-    if config.processing.doppler_recovery != "none":
-        return np.zeros(geom.closing_speed_mps.shape, bool)
-    return np.abs(doppler_hz(config, scene, geom)) >= 1.0 / rise_s
+def gate_lags(config, bud, geom, r_mean_m):
+    """Per shot-beam (tau - tau_ref reduced to a chirp period [s], reference delay [s], outside
+    the range window) of the shots' power-weighted mean ranges: the range window's gate, else
+    the configuration's reference delay (fixed or the ``sys.fmaxopt`` rule)."""
+    ok = np.isfinite(r_mean_m)
+    delay = 2.0 * config.channel.group_index * np.where(ok, r_mean_m, 1.0) / SPEED_OF_LIGHT_M_S
+    ref, outside = window_reference_delay_s(config, geom, r_mean_m)
+    if ref is None:
+        ref = reference_delay_s(config, delay, bud.rate_hz_per_s)
+    return np.mod(delay - ref, bud.train.period_s), ref, outside
+
+
+def doppler_displaced(config, scene, geom, bud, lag_s) -> np.ndarray:
+    """(n, b) shots whose Doppler shift the record resolves (|f_d| T_ov >= 1, T_ov the chirps'
+    overlap at the shot's lag ``lag_s``, as the link tier splits the line: it moves by more than
+    the range resolution) with nothing to recover it (module docstring)."""
+    f_d = np.abs(doppler_hz(config, scene, geom))
+    out = np.zeros(f_d.shape, bool)
+    have = (f_d > 0) & np.isfinite(lag_s)
+    if config.processing.doppler_recovery != "none" or not np.any(have):
+        return out
+    out[have] = f_d[have] * _overlap_at(config, bud, lag_s[have]) >= 1.0
+    return out
 
 
 def doppler_hz(config, scene, geom):
@@ -552,10 +570,7 @@ def measure_link(config, scene, geom, seq) -> dict:
     range_meas = np.full(psig.shape, np.nan)
     width = np.full(psig.shape, np.nan)
     delay = 2.0 * n_grp * np.where(ok, r_mean, 1.0) / SPEED_OF_LIGHT_M_S
-    ref, outside = window_reference_delay_s(config, geom, r_mean)
-    if ref is None:
-        ref = reference_delay_s(config, delay, rate)
-    lag = np.mod(delay - ref, bud.train.period_s)
+    lag, ref, outside = gate_lags(config, bud, geom, np.where(ok, r_mean, np.nan))
     f_b = rate * lag
     no_overlap, out_of_band = beat_flags(config, bud, lag, f_b)
     if np.any(ok):
@@ -605,7 +620,7 @@ def measure_link(config, scene, geom, seq) -> dict:
         range_meas[ok] = SPEED_OF_LIGHT_M_S * (fm / rate + ref[ok]) / (2.0 * n_grp)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band, outside,
-                   doppler_displaced(config, scene, geom, rate, bud.train.rise_s))
+                   doppler_displaced(config, scene, geom, bud, np.where(ok, lag, np.nan)))
 
 
 def _overlap_at(config, bud, lag_s) -> np.ndarray:
@@ -631,7 +646,7 @@ def _static_phase(config, bud, delay_s, ref_delay_s) -> np.ndarray:
 def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
             out_of_band, outside_window, displaced) -> dict:
     """The survey's per-shot fields; ``detected`` says why a return does not count: 2 no
-    surface; 3 outside the range window (``survey.range_window_m``, or without one the ranges
+    surface; 3 outside the range gate (``survey.range_window_m``, or without one the ranges
     whose beat lies in the processed band with the chirps overlapping); 4 Doppler-displaced;
     0 below the detection threshold."""
     thr = float(db_to_ratio(config.survey.detection_threshold_db))
@@ -742,7 +757,9 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     no_overlap = np.zeros((n, b), bool)
     out_of_band = np.zeros((n, b), bool)
     n_grp = config.channel.group_index
-    window_ref, outside = window_reference_delay_s(config, geom, returns[1])
+    lags, window_ref, outside = gate_lags(config, bud, geom, returns[1])
+    if config.survey.range_window_m is None:
+        window_ref = None
     for flat in np.flatnonzero(ok.ravel()):  # the rf tier is the reference: one shot at a time
         i, j = divmod(int(flat), b)
         cfg, echoes = rf_shot_setup(config, base, bud.ptx_w, geom, returns, i, j, window_ref)
@@ -757,7 +774,7 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
             progress(1)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band, outside,
-                   doppler_displaced(config, scene, geom, bud.rate_hz_per_s, bud.train.rise_s))
+                   doppler_displaced(config, scene, geom, bud, np.where(ok, lags, np.nan)))
 
 
 def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
@@ -794,6 +811,7 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
     propagation = config.channel.carrier_phase == "propagation"
     f_d_all = doppler_hz(config, scene, geom)
     window_ref, outside = window_reference_delay_s(config, geom, r_mean)
+    lags = np.full((n, b), np.nan)
     flat = np.flatnonzero(ok.ravel())
     order_by = r_mean if window_ref is None else window_ref
     flat = flat[np.argsort(order_by.ravel()[flat], kind="stable")]
@@ -828,11 +846,11 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         width[ii, jj] = out["d_3dB"] * 2.0 * n_grp * bud.rate_hz_per_s / SPEED_OF_LIGHT_M_S
         # Per-shot flags from each shot's own lag (the tier's flags describe the batch's centre).
         lag = np.mod(delay - bud_batch.ref_delay_s, bud.train.period_s)
+        lags[ii, jj] = lag
         f_b = bud.rate_hz_per_s * lag
         no_overlap[ii, jj], out_of_band[ii, jj] = beat_flags(cfg, bud, lag, f_b)
         out_of_band[ii, jj] |= f_b > band_top
         if progress is not None:
             progress(idx.size)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band, outside,
-                   doppler_displaced(config, scene, geom, bud.rate_hz_per_s, bud.train.rise_s))
+                   out_of_band, outside, doppler_displaced(config, scene, geom, bud, lags))

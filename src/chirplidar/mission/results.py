@@ -77,13 +77,13 @@ CONVENTIONS = "CF-1.8"
 FEATURE_TYPE = "trajectory"
 
 # detected: why a shot has (no) return.
-# 3: the return lies outside the range window (survey.range_window_m, or without one the ranges
+# 3: the return lies outside the range gate (survey.range_window_m, or without one the ranges
 # whose beat lies in the processed band with the chirps overlapping): the instrument does not
 # look there, its beat would alias or leave the band; 4: a resolved Doppler shift displaces the
 # beat line by more than the range resolution and nothing compensates it.
 DETECTED_FLAG_VALUES = np.array([0, 1, 2, 3, 4], dtype=np.int8)
 DETECTED_FLAG_MEANINGS = ("below_detection_threshold detected no_surface_in_beam "
-                          "outside_range_window doppler_displaced")
+                          "outside_range_gate doppler_displaced")
 
 
 @dataclass(frozen=True)

@@ -534,7 +534,7 @@ def summarise(ds, path, elapsed_s: float) -> dict:
         "beams": int(ds.sizes["trajectory"]), "shots": n_obs,
         "returns": int(det.size), "detected": int(np.sum(det == 1)),
         "below_threshold": int(np.sum(det == 0)), "no_surface": int(np.sum(det == 2)),
-        "outside_range_window": int(np.sum(det == 3)), "doppler_displaced": int(np.sum(det == 4)),
+        "outside_range_gate": int(np.sum(det == 3)), "doppler_displaced": int(np.sum(det == 4)),
         "median_snr_db": float(np.median(snr)) if snr.size else float("nan"),
         "range_error_mean_m": float(np.mean(err)) if err.size else float("nan"),
         "range_error_std_m": float(np.std(err)) if err.size else float("nan"),
@@ -708,7 +708,7 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
         "output": str(path), "tier": tier, "seed": int(seed), "beams": int(n_beams),
         "shots": int(n_obs), "returns": int(n_obs * n_beams), "detected": n_det,
         "below_threshold": int(counts[0]), "no_surface": int(counts[2]),
-        "outside_range_window": int(counts[3]), "doppler_displaced": int(counts[4]),
+        "outside_range_gate": int(counts[3]), "doppler_displaced": int(counts[4]),
         "median_snr_db": float(median), "range_error_mean_m": float(mean),
         "range_error_std_m": float(std), "range_error_rms_m": float(rms),
         "range_error_p95_abs_m": float(p95), "elapsed_s": elapsed_s,
@@ -723,7 +723,7 @@ def format_summary(s: dict) -> str:
         f"  detected         {s['detected']} of {s['returns']} ({pct:.1f} %); "
         f"{s['below_threshold']} below threshold, {s['no_surface']} with no surface in the beam"
         + "".join(f", {s[k]} {text}" for k, text in (
-            ("outside_range_window", "outside the range window"),
+            ("outside_range_gate", "outside the range gate (window or processed band)"),
             ("doppler_displaced", "displaced by an uncompensated Doppler shift")) if s.get(k)),
     ]
     if s["detected"]:

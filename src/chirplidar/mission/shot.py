@@ -161,7 +161,7 @@ def locate_shot(prep: Prepared, *, at_s=None, beam: int = 0, root=None):
             raise ConfigError(f"{src}: --at-s {at_s:g}: outside the survey span "
                               f"{t[0]:g} .. {t[-1]:g} s (survey.start_s .. stop_s)")
         k = int(np.argmin(np.abs(t - at_s)))
-        c, i = divmod(k, plan.chunk_shots)
+        c, i = plan.locate(k)
         geom, seq = _geometry(prep, root, c)
         if not np.isfinite(geom.range_true_m[i, beam]):
             x, y, h = geom.platform_xyh[i]
@@ -175,7 +175,7 @@ def locate_shot(prep: Prepared, *, at_s=None, beam: int = 0, root=None):
         hits = np.flatnonzero(np.isfinite(geom.range_true_m[:, beam]))
         if hits.size:
             i = int(hits[0])
-            return geom, seq, i, c * plan.chunk_shots + i
+            return geom, seq, i, plan.chunk_start(c) + i
     raise ConfigError(f"{src}: beam {beam} hits the terrain at no shot of the survey span "
                       f"{t[0]:g} .. {t[-1]:g} s")
 
@@ -216,6 +216,9 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
         r0 = float(r_mean[i, j])   # aimed as measure_link aims each shot
         att = float(measure.reference_attenuation_db(config, r0, psig[i, j] / ptx_w))
         over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
+        ref = measure.window_reference_delay_s(config, geom, r_mean)[0]
+        if ref is not None:   # the run's range gate for this shot
+            over["system.reference_delay_s"] = float(ref[i, j])
         if "doppler" in base.effects.enabled:
             over["effects.doppler.radial_velocity_mps"] = float(geom.doppler_speed_mps[i, j])
         cfg, echoes = config_with(base, over), None

@@ -143,6 +143,19 @@ class SurveyPlan:
             return self.t_s[a:b]
         return self.t_s[index * self.chunk_shots:(index + 1) * self.chunk_shots]
 
+    def chunk_start(self, index: int) -> int:
+        """Index of chunk ``index``'s first shot in :attr:`t_s`."""
+        if self.chunk_starts is not None:
+            return int(self.chunk_starts[index]) if len(self.chunk_starts) else 0
+        return index * self.chunk_shots
+
+    def locate(self, shot: int) -> tuple[int, int]:
+        """(chunk, index within it) of shot ``shot`` of :attr:`t_s`."""
+        if self.chunk_starts is not None:
+            c = int(np.searchsorted(self.chunk_starts, shot, side="right")) - 1
+            return c, shot - int(self.chunk_starts[c])
+        return divmod(shot, self.chunk_shots)
+
     def track_of(self, t_s) -> np.ndarray:
         """(n,) track of each shot time: a campaign's pass number, else :func:`track_index`."""
         if self.pass_starts_s is not None:

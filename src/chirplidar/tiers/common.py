@@ -60,7 +60,7 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     """The beat line the peak search finds when a resolved Doppler shift f_d splits the beat f_R
     into |f_R + f_d| and |f_R - f_d| of equal power (Appendix D): one inside the processed band,
     either with equal chance when both are (the rf and baseband tiers' noise decides), the upper
-    one when neither is (the shot is then flagged out of band). f_d = 0: the beat itself."""
+    one when neither is. f_d = 0: the beat itself."""
     f_b = np.asarray(f_beat_hz, float)
     f_d = np.broadcast_to(np.asarray(f_doppler_hz, float), f_b.shape)
     if not np.any(f_d != 0):
