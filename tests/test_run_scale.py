@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import shutil
 import re
 import signal
 import subprocess
@@ -402,3 +403,136 @@ def test_freed_chunk_memory_is_reused_whenever_the_setting_is_made():
     out = subprocess.run([sys.executable, "-c", _MALLOC_PROBE], capture_output=True,
                          text=True, check=True)
     assert int(out.stdout.strip()) < 4096 // 10, out.stdout
+
+
+class _Stop(Exception):
+    pass
+
+
+def _interrupted(small, tmp_path, monkeypatch, after: int = 4, seed=None):
+    """A serial run of the small mission stopped after ``after`` chunks: its out path and chunk
+    directory (with the manifest and ``after`` sealed chunks)."""
+    from chirplidar.mission import runner
+
+    real = runner.run_chunk
+    count = {"n": 0}
+
+    def stopping(job, index, progress=None):
+        if count["n"] == after:
+            raise _Stop
+        count["n"] += 1
+        return real(job, index, progress)
+
+    out = tmp_path / "cut.nc"
+    monkeypatch.setattr(runner, "run_chunk", stopping)
+    with pytest.raises(_Stop):
+        run_mission(small.mission, out=out, cache_dir=small.cache, date_created=DATE,
+                    seed=seed)
+    monkeypatch.setattr(runner, "run_chunk", real)
+    chunks = chunk_dir_for(out)
+    assert ChunkWriter(chunks).completed_chunks() == list(range(after))
+    return out, chunks
+
+
+def _flip(path: Path, offset: int, n: int = 64) -> None:
+    data = bytearray(path.read_bytes())
+    for k in range(offset, offset + n):
+        data[k] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", ["inverted", "truncated", "swapped", "foreign", "unsealed"])
+def test_resume_recomputes_bad_chunks_and_merges_none(small, tmp_path, monkeypatch, damage):
+    """Issue 15: a chunk damaged inside its data (64 bytes inverted), truncated, swapped with
+    another, copied from another run, or left without its seal (a write cut short) is named,
+    computed again by --resume and never merged: the file equals an uninterrupted run's."""
+    out, chunks = _interrupted(small, tmp_path, monkeypatch)
+    writer = ChunkWriter(chunks)
+    c1, c2 = writer.chunk_path(1), writer.chunk_path(2)
+    if damage == "inverted":
+        _flip(c1, c1.stat().st_size // 2)
+    elif damage == "truncated":
+        c1.write_bytes(c1.read_bytes()[: c1.stat().st_size // 3])
+    elif damage == "swapped":
+        for suffix in (".nc", ".json"):
+            a, b = c1.with_suffix(suffix), c2.with_suffix(suffix)
+            tmp = a.with_name("swap" + suffix)
+            a.rename(tmp)
+            b.rename(a)
+            tmp.rename(b)
+    elif damage == "foreign":   # chunk 1 of the same mission run with another seed
+        (tmp_path / "other").mkdir()
+        _, other = _interrupted(small, tmp_path / "other", monkeypatch, after=2, seed=7)
+        shutil.copy(ChunkWriter(other).chunk_path(1), c1)
+        shutil.copy(ChunkWriter(other).seal_path(1), c1.with_suffix(".json"))
+    else:
+        c1.with_suffix(".json").unlink()
+    with pytest.warns(UserWarning) as caught:
+        res = run_mission(small.mission, out=out, cache_dir=small.cache, resume=True)
+    named = [str(w.message) for w in caught]
+    for k in ((1, 2) if damage == "swapped" else (1,)):
+        assert any(re.search(rf"chunk {k} \(.*chunk_0000{k}\.nc\): .*computing it again", m)
+                   for m in named), named
+    assert not chunks.exists()
+    _identical_files(res.path, small.serial.path)
+
+
+def test_a_chunk_damaged_after_its_seal_is_never_merged(small, tmp_path, monkeypatch):
+    """The merge checks each chunk's seal as it copies it: a chunk damaged between its write
+    and its merge stops the run with its name (its folder kept for --resume)."""
+    from chirplidar.mission import runner
+
+    real = runner.run_chunk
+
+    def damaging(job, index, progress=None):
+        path = real(job, index, progress)
+        if index == 3:
+            _flip(Path(path), Path(path).stat().st_size // 2)
+        return path
+
+    monkeypatch.setattr(runner, "run_chunk", damaging)
+    out = tmp_path / "damaged.nc"
+    with pytest.raises(ValueError, match=r"chunk 3 .*damaged: its SHA-256 differs"):
+        run_mission(small.mission, out=out, cache_dir=small.cache, date_created=DATE)
+    assert not out.exists() and chunk_dir_for(out).is_dir()
+
+
+def test_one_run_per_output(small, tmp_path, capsys):
+    """Issue 15: two runs on one output; the second is refused at once, naming the holder; the
+    lock of a killed run is taken over (with a warning) by the next one."""
+    out = tmp_path / "shared.nc"
+    args = ["run", str(small.mission), "--out", str(out), "--no-progress"]
+    env = {"CHIRPLIDAR_CACHE": str(small.cache), "SOURCE_DATE_EPOCH": DATE_EPOCH}
+    proc = _cli(*args, env={**env, CHUNK_DELAY_ENV: "0.5"})
+    lock = out.with_name(out.name + ".lock")
+    try:
+        deadline = time.monotonic() + 60
+        while not lock.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.02)
+        assert lock.exists(), proc.communicate()
+        t = time.monotonic()
+        assert main([*args, "--overwrite"]) == 2
+        assert time.monotonic() - t < 5.0
+        err = capsys.readouterr().err
+        assert f"another run is writing it (pid {proc.pid} on" in err
+        assert len(err.strip().splitlines()) == 1
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert lock.exists()                       # SIGKILL: nothing removed it
+    with pytest.warns(UserWarning, match=rf"taking over the lock of pid {proc.pid}"):
+        res = run_mission(small.mission, out=out, cache_dir=small.cache, overwrite=True,
+                          date_created=DATE)
+    assert not lock.exists()
+    _identical_files(res.path, small.serial.path)
+
+
+def test_output_that_is_a_directory_is_refused_before_any_work(small, tmp_path, capsys):
+    target = tmp_path / "results.nc"
+    target.mkdir()
+    assert main(["run", str(small.mission), "--out", str(target), "--overwrite"]) == 2
+    assert "is a directory" in capsys.readouterr().err
+    assert not chunk_dir_for(target).exists()

@@ -666,12 +666,72 @@ class ChunkWriter:
 
     A killed run loses no finished chunk: each chunk appears only once fully written.
     ``completed_chunks()`` lists the finished indices (for ``--resume``).
+
+    With a ``run_id`` (a run's identity: its configuration's hash and creation date) every
+    chunk gets a seal ``chunk_NNNNN.json`` written after it: its index, the run and the file's
+    SHA-256. A chunk counts as finished only with its seal (:meth:`is_ready`);
+    :meth:`check_chunks` finds the damaged, truncated, foreign and misplaced ones, and the merge
+    checks each chunk's seal before copying it, so none of those is ever merged.
     """
 
-    def __init__(self, path_dir, *, create: bool = True):
+    def __init__(self, path_dir, *, create: bool = True, run_id: str | None = None):
         self.path_dir = Path(path_dir)
+        self.run_id = run_id
         if create:
             self.path_dir.mkdir(parents=True, exist_ok=True)
+
+    def seal_path(self, index: int) -> Path:
+        return self.chunk_path(index).with_suffix(".json")
+
+    def is_ready(self, index: int) -> bool:
+        """The chunk's file exists (and, with a ``run_id``, its seal)."""
+        return self.chunk_path(index).is_file() and (
+            self.run_id is None or self.seal_path(index).is_file())
+
+    def _seal(self, index: int) -> None:
+        import hashlib
+        import json
+
+        data = self.chunk_path(index).read_bytes()
+        seal = {"index": int(index), "run": self.run_id, "bytes": len(data),
+                "sha256": hashlib.sha256(data).hexdigest()}
+        write_bytes_atomic(self.seal_path(index), json.dumps(seal).encode("utf-8"))
+
+    def chunk_problem(self, index: int) -> str | None:
+        """Why chunk ``index`` cannot be merged (None when its seal vouches for it)."""
+        import hashlib
+        import json
+
+        path, seal_path = self.chunk_path(index), self.seal_path(index)
+        if not path.is_file():
+            return "missing"
+        if self.run_id is None:
+            return None
+        try:
+            seal = json.loads(seal_path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return "no seal: its write was cut short"
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            return "its seal is unreadable"
+        if not isinstance(seal, dict) or seal.get("run") != self.run_id:
+            return "from another run"
+        if seal.get("index") != index:
+            return f"out of place: it is chunk {seal.get('index')}"
+        data = path.read_bytes()
+        if len(data) != seal.get("bytes"):
+            return f"truncated or extended: {len(data)} bytes, {seal.get('bytes')} written"
+        if hashlib.sha256(data).hexdigest() != seal.get("sha256"):
+            return "damaged: its SHA-256 differs from the one written"
+        return None
+
+    def check_chunks(self) -> dict[int, str]:
+        """Chunk index -> problem, for every chunk file on disk that cannot be merged."""
+        return {i: why for i in self.completed_chunks() if (why := self.chunk_problem(i))}
+
+    def discard(self, index: int) -> None:
+        """Remove chunk ``index`` and its seal (to be computed again)."""
+        self.chunk_path(index).unlink(missing_ok=True)
+        self.seal_path(index).unlink(missing_ok=True)
 
     def chunk_path(self, index: int) -> Path:
         if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)) \
@@ -692,9 +752,14 @@ class ChunkWriter:
         """
         obs_chunk = _check_obs_chunk(obs_chunk)
         short = obs_chunk is not None and ds.sizes.get(OBS_DIM, obs_chunk) < obs_chunk
-        return _write_netcdf(ds, self.chunk_path(index), overwrite=overwrite,
+        if self.run_id is not None:
+            self.seal_path(index).unlink(missing_ok=True)   # a rewrite is unsealed until done
+        path = _write_netcdf(ds, self.chunk_path(index), overwrite=overwrite,
                              compress=compress, obs_chunk=obs_chunk,
                              obs_unlimited=compress and short)
+        if self.run_id is not None:
+            self._seal(index)
+        return path
 
     def completed_chunks(self) -> list[int]:
         """Sorted indices of the chunks on disk (temp files of a killed write are ignored)."""
@@ -708,7 +773,8 @@ class ChunkWriter:
     def remove_temporaries(self) -> list[Path]:
         """Delete leftover temp files of chunk writes that were killed; returns them."""
         gone = []
-        for p in self.path_dir.glob(".chunk_*.nc.*.tmp"):
+        for p in [*self.path_dir.glob(".chunk_*.nc.*.tmp"),
+                  *self.path_dir.glob(".chunk_*.json.*.tmp")]:
             p.unlink(missing_ok=True)
             gone.append(p)
         return gone
@@ -831,8 +897,11 @@ class ChunkMerge:
         """Append the chunks whose files exist, in order, up to the first missing one;
         returns how many were appended."""
         done = self.appended
-        while self.appended < self.n_chunks and \
-                self.writer.chunk_path(self.appended).is_file():
+        while self.appended < self.n_chunks and self.writer.is_ready(self.appended):
+            why = self.writer.chunk_problem(self.appended)
+            if why is not None:
+                raise ValueError(f"chunk {self.appended} ({self.writer.chunk_path(self.appended)})"
+                                 f": {why}; not merged (rerun with --resume to recompute it)")
             with NETCDF_LOCK:
                 self._append(self.appended)
         return self.appended - done
@@ -843,7 +912,7 @@ class ChunkMerge:
         self.append_ready()
         if self.appended < self.n_chunks:
             missing = [i for i in range(self.appended, self.n_chunks)
-                       if not self.writer.chunk_path(i).is_file()]
+                       if not self.writer.is_ready(i)]
             raise ValueError(f"chunks missing in {self.writer.path_dir}: {missing}")
         with NETCDF_LOCK:
             self._dst.close()

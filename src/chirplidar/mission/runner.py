@@ -372,8 +372,13 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
     # Compressed here, in the results file's HDF5 chunks: the merge copies them as they are.
     # The directory is not created here: a straggler of a run that is over cannot leave a
     # manifest-less chunk.
-    return ChunkWriter(job.chunk_dir, create=False).write(index, ds, overwrite=True,
-                                                          obs_chunk=plan.chunk_shots)
+    return ChunkWriter(job.chunk_dir, create=False, run_id=_run_id(job)).write(
+        index, ds, overwrite=True, obs_chunk=plan.chunk_shots)
+
+
+def _run_id(job: ChunkJob) -> str:
+    """The identity a run's chunks are sealed with: its configuration and creation date."""
+    return f"{job.configuration_sha256}/{job.scene_sha256}/{job.date_created}"
 
 
 def _dask_run_chunk(job: ChunkJob, index: int) -> str:
@@ -937,6 +942,74 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
         raise FileExistsError(f"{out} exists: pass --overwrite to replace it (nothing was run)")
     if out.suffix != ".nc":
         raise ConfigError(f"--out {out}: the results file must end in .nc")
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a directory; give a results file name (*.nc)")
+    if out.parent != Path(".") and out.parent.is_dir():
+        with _output_lock(out):
+            return _run_locked(mission_path, out, overrides=overrides, tier=tier, seed=seed,
+                               overwrite=overwrite, progress=progress, cache_dir=cache_dir,
+                               date_created=date_created, workers=workers,
+                               scheduler=scheduler, resume=resume, t0=t0)
+    return _run_locked(mission_path, out, overrides=overrides, tier=tier, seed=seed,
+                       overwrite=overwrite, progress=progress, cache_dir=cache_dir,
+                       date_created=date_created, workers=workers, scheduler=scheduler,
+                       resume=resume, t0=t0)
+
+
+LOCK_SUFFIX = ".lock"
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:   # someone else's process: alive
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def _output_lock(out: Path):
+    """Hold ``<out>.lock`` (this process's pid, host and start) for the run's life: a second
+    run on the same output is refused at once, naming the holder; a lock left by a process of
+    this host that no longer runs is taken over with a warning."""
+    import socket
+
+    lock = out.with_name(out.name + LOCK_SUFFIX)
+    me = {"pid": os.getpid(), "host": socket.gethostname(),
+          "since": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()}
+    for attempt in (0, 1):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            break
+        except FileExistsError:
+            try:
+                holder = json.loads(lock.read_text(encoding="utf-8"))
+                pid, host = int(holder["pid"]), str(holder["host"])
+            except (OSError, ValueError, KeyError, TypeError):
+                holder, pid, host = {}, -1, ""
+            stale = host == me["host"] and pid > 0 and not _process_alive(pid)
+            if not stale or attempt:
+                who = (f"pid {pid} on {host} since {holder.get('since', '?')}" if holder
+                       else "an unknown process")
+                raise FileExistsError(f"{out}: another run is writing it ({who}; lock "
+                                      f"{lock}); wait for it to finish, or delete the lock if "
+                                      "that run is gone") from None
+            warnings.warn(f"{lock}: taking over the lock of pid {pid}, which no longer runs",
+                          stacklevel=3)
+            lock.unlink(missing_ok=True)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(me, f)
+    try:
+        yield lock
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, progress,
+                cache_dir, date_created, workers, scheduler, resume, t0) -> RunResult:
+    """:func:`run_mission` once the output's lock is held."""
     chunk_dir = chunk_dir_for(out)
     if chunk_dir.exists() and not (resume or overwrite):
         raise FileExistsError(
@@ -1013,8 +1086,12 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     ``timings["chunk_appends_s"]`` is the part of ``chunks_s`` spent appending."""
     sv = config.survey
     _keep_freed_memory()    # before a local cluster forks its workers: they inherit it
-    writer = ChunkWriter(chunk_dir)
-    done = set(writer.completed_chunks())
+    writer = ChunkWriter(chunk_dir, run_id=_run_id(job))
+    for i, why in writer.check_chunks().items():   # a resumed run's chunks: never merge these
+        warnings.warn(f"chunk {i} ({writer.chunk_path(i)}): {why}; computing it again",
+                      stacklevel=2)
+        writer.discard(i)
+    done = {i for i in writer.completed_chunks() if writer.is_ready(i)}
     todo = [i for i in range(plan.n_chunks) if i not in done]
     bar = None
     if progress:
