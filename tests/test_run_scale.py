@@ -536,3 +536,40 @@ def test_output_that_is_a_directory_is_refused_before_any_work(small, tmp_path, 
     assert main(["run", str(small.mission), "--out", str(target), "--overwrite"]) == 2
     assert "is a directory" in capsys.readouterr().err
     assert not chunk_dir_for(target).exists()
+
+
+def test_resume_refuses_a_changed_dem(tmp_path, monkeypatch):
+    """Issue 15: the manifest holds the SHA-256 of the terrain's DEM; a DEM changed between a
+    stopped run and --resume is refused, naming the file."""
+    rasterio = pytest.importorskip("rasterio")
+    from conftest import write_uav_mission
+    from rasterio.transform import Affine
+
+    from chirplidar.geometry import frames
+
+    x0, y0 = frames.geodetic_to_projected(69.0, -49.0, 0.0, 3413)[:2]
+    dem = tmp_path / "dem.tif"
+
+    def write_dem(height):
+        with rasterio.open(dem, "w", driver="GTiff", height=200, width=200, count=1,
+                           dtype="float32", crs="EPSG:3413",
+                           transform=Affine(10.0, 0.0, float(x0) - 1000.0, 0.0, -10.0,
+                                            float(y0) + 1000.0)) as dst:
+            dst.write(np.full((200, 200), height, np.float32), 1)
+
+    write_dem(100.0)
+    scene = tmp_path / "dem_scene.toml"
+    scene.write_text('name = "dem"\nepsg = 3413\neffects = []\n[terrain]\nsource = "dem"\n'
+                     '[terrain.dem]\npath = "dem.tif"\nmaterial = "snow"\n[atmosphere]\n'
+                     'cn2_profile = "none"\nextinction_per_m = 0.0\nscale_height_m = 1200.0\n')
+    mission = write_uav_mission(tmp_path, scene, "dem_uav", altitude=600.0,
+                                waypoints="[[-800.0, 0.0], [800.0, 0.0]]", stop="10.0",
+                                extra="chunk_shots = 50")
+    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
+    out, chunks = _interrupted(small, tmp_path, monkeypatch, after=2)
+    write_dem(110.0)                                   # the DEM changes on disk
+    with pytest.raises(ConfigError, match=rf"terrain file\(s\) {re.escape(str(dem))} changed"):
+        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    write_dem(100.0)                                   # the same heights again: resumes
+    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    assert res.summary["shots"] == 200

@@ -99,7 +99,8 @@ MANIFEST_FORMAT = "chirplidar-run-chunks/1"
 CHUNK_DELAY_ENV = "CHIRPLIDAR_TEST_CHUNK_DELAY_S"
 # Manifest keys that identify a run: a resumed run must match them all.
 _IDENTITY = ("format", "mission_file", "configuration_sha256", "seed", "tier", "scene_file",
-             "scene_sha256", "n_shots", "n_beams", "n_chunks", "chunk_shots", "software_version")
+             "scene_sha256", "input_files_sha256", "n_shots", "n_beams", "n_chunks",
+             "chunk_shots", "software_version")
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,14 @@ def _config_toml(config) -> str:
     from ..config.loader import _unflatten
 
     return tomli_w.dumps(_unflatten(config_flat(config)))
+
+
+def _file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def _sha256(text: str) -> str:
@@ -449,6 +458,9 @@ def _manifest(mission_path: Path, config, scene, plan, config_toml: str) -> dict
         "tier": config.survey.tier,
         "scene_file": str(Path(scene.path).resolve()),
         "scene_sha256": _sha256(scene.text),
+        # the terrain's own files (mesh, DEM): the mission's TLE and instrument files are in
+        # the resolved configuration, the scene in its text
+        "input_files_sha256": {str(p): _file_sha256(p) for p in scene.input_files},
         "n_shots": plan.n_shots,
         "n_beams": plan.beams.n_beams,
         "n_chunks": plan.n_chunks,
@@ -493,6 +505,14 @@ def _manifest_differences(old: dict, new: dict) -> list[str]:
             continue
         if key == "scene_sha256":
             diffs.append("scene: the scene file's text differs")
+            continue
+        if key == "input_files_sha256":
+            a, b = old.get(key) or {}, new.get(key) or {}
+            changed = sorted(p for p in set(a) | set(b) if a.get(p) != b.get(p))
+            if not changed:   # a manifest written before the key existed: no terrain files
+                continue
+            diffs.append(f"terrain file(s) {', '.join(changed)} changed on disk since the "
+                         "chunks were computed")
             continue
         diffs.append(f"{key}: {old.get(key)!r} there, {new.get(key)!r} now")
     return diffs

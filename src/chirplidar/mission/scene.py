@@ -758,6 +758,7 @@ class Scene:
     cache_file: Path | None = None
     cache_hit: bool = False
     build_s: float = 0.0
+    input_files: tuple[Path, ...] = ()   # files the terrain was read from (mesh, DEM)
 
     # -- geometry
     @property
@@ -1070,6 +1071,8 @@ def scene_from_text(text: str, *, base_dir, source: str | None = None, path=None
         terr = _mesh_terrain(tc, base_dir, source, centre)
     else:
         terr = _dem_terrain(tc, base_dir, source, cfg.epsg)
+    read_from = getattr(tc, tc.source) if tc.source in ("mesh", "dem") else None
+    files = (_resolve(base_dir, read_from.path).resolve(),) if read_from is not None else ()
     _check_specular_slopes(cfg, terr, source)
     if centre is None:
         lo, hi = terr.bounds
@@ -1080,7 +1083,7 @@ def scene_from_text(text: str, *, base_dir, source: str | None = None, path=None
                  terrain=terr, effects=tuple(cfg.effects), config=cfg, text=text,
                  center_xy_m=centre, overrides=applied,
                  cache_file=cache_file if (hit or stored) else None, cache_hit=hit,
-                 build_s=build_s)
+                 build_s=build_s, input_files=files)
 
 
 def load_scene(path, *, cache_dir=None, use_cache: bool = True, progress: bool = False,
