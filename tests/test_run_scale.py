@@ -573,3 +573,23 @@ def test_resume_refuses_a_changed_dem(tmp_path, monkeypatch):
     write_dem(100.0)                                   # the same heights again: resumes
     res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
     assert res.summary["shots"] == 200
+
+
+def test_the_results_file_is_read_back_before_the_chunks_go(small, tmp_path):
+    """verify_results_file (run before the chunk folder is deleted) reads every variable: the
+    serial run's file passes; a copy with 64 bytes inverted in its data, or cut short, fails
+    with one line naming the file."""
+    from chirplidar.mission.results import verify_results_file
+
+    verify_results_file(small.serial.path, 3000, 1, block_obs=500)
+    damaged = tmp_path / "damaged.nc"
+    shutil.copy(small.serial.path, damaged)
+    _flip(damaged, damaged.stat().st_size // 2)
+    with pytest.raises(ValueError, match=re.escape(str(damaged))):
+        verify_results_file(damaged, 3000, 1, block_obs=500)
+    cut = tmp_path / "cut.nc"
+    cut.write_bytes(small.serial.path.read_bytes()[: small.serial.path.stat().st_size // 2])
+    with pytest.raises(ValueError, match=re.escape(str(cut))):
+        verify_results_file(cut, 3000, 1, block_obs=500)
+    with pytest.raises(ValueError, match="2999 expected"):
+        verify_results_file(small.serial.path, 2999, 1)

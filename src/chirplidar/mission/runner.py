@@ -82,6 +82,7 @@ from .results import (
     ChunkWriter,
     build_dataset,
     read_netcdf,
+    verify_results_file,
     write_bytes_atomic,
 )
 from .survey import (check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey,
@@ -1158,6 +1159,8 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     t2 = time.perf_counter()
     with merge:
         path = merge.finish()
+    # Every variable read back before the chunks go: they are the only other copy.
+    verify_results_file(path, plan.n_shots, plan.beams.n_beams, block_obs=4 * plan.chunk_shots)
     files = [writer.chunk_path(i) for i in range(plan.n_chunks)]
     summary = _summary_of_chunks(files, path, sv.tier, config.seed, plan.beams.n_beams, 0.0,
                                  budget_bytes=one_chunk, first_pass=summary_pass)
