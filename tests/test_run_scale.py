@@ -593,3 +593,19 @@ def test_the_results_file_is_read_back_before_the_chunks_go(small, tmp_path):
         verify_results_file(cut, 3000, 1, block_obs=500)
     with pytest.raises(ValueError, match="2999 expected"):
         verify_results_file(small.serial.path, 2999, 1)
+
+
+def test_scheduler_without_workers_times_out_with_a_message(small, tmp_path, monkeypatch):
+    """Issue 15: a scheduler with no worker used to wait for ever; now a clear error after
+    CHIRPLIDAR_WORKER_WAIT_S (here 2 s), and no chunk folder left to block the next run."""
+    from dask.distributed import LocalCluster
+
+    monkeypatch.setenv("CHIRPLIDAR_WORKER_WAIT_S", "2")
+    out = tmp_path / "lonely.nc"
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        t = time.monotonic()
+        with pytest.raises(ConfigError, match=r"no worker joined within 2 s"):
+            run_mission(small.mission, out=out, cache_dir=small.cache,
+                        scheduler=cluster.scheduler_address)
+        assert time.monotonic() - t < 30.0
+    assert not out.exists() and not chunk_dir_for(out).exists()

@@ -847,6 +847,24 @@ _LOCAL_CLUSTER_CONFIG = {
 }
 
 
+#: Seconds a run on a given scheduler waits for its first worker (environment override).
+WORKER_WAIT_ENV = "CHIRPLIDAR_WORKER_WAIT_S"
+WORKER_WAIT_S = 60.0
+
+
+def _worker_wait_s() -> float:
+    raw = os.environ.get(WORKER_WAIT_ENV, "").strip()
+    if not raw:
+        return WORKER_WAIT_S
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{WORKER_WAIT_ENV}={raw!r}: must be a positive number of seconds")
+    return value
+
+
 def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
               timings: dict, on_chunk=None) -> None:
     """One Dask task per missing chunk; the progress bar follows completed futures and
@@ -866,6 +884,13 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
                 client = Client(scheduler)   # dask's distributed.comm.timeouts.connect
             except (OSError, TimeoutError, ValueError) as exc:
                 raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            wait = _worker_wait_s()
+            try:   # a scheduler with no worker would wait for ever, without a word
+                client.wait_for_workers(1, timeout=wait)
+            except (TimeoutError, OSError):
+                raise ConfigError(f"--scheduler {scheduler}: no worker joined within {wait:g} s "
+                                  f"({WORKER_WAIT_ENV}); start workers (`dask worker "
+                                  f"{scheduler}`), then rerun with --resume") from None
         else:
             import dask
 
