@@ -279,6 +279,18 @@ def _cli(*args, env=None, **kw):
                             stderr=subprocess.PIPE, text=True, **kw)
 
 
+def _sigkill(proc) -> None:
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=30)
+
+
+def _reap(proc) -> None:
+    """A test's subprocess never outlives it."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+
+
 def test_kill_and_resume(small, tmp_path):
     mission, cache, serial = small.mission, small.cache, small.serial
     out = tmp_path / "killed.nc"
@@ -297,12 +309,9 @@ def test_kill_and_resume(small, tmp_path):
             time.sleep(0.02)
         else:
             pytest.fail("no two chunk files within 120 s")
-        proc.send_signal(signal.SIGKILL)
-        proc.communicate(timeout=30)
+        _sigkill(proc)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        _reap(proc)
     done = ChunkWriter(chunks).completed_chunks()
     assert 2 <= len(done) < 6 and done == list(range(len(done)))
     assert not out.exists() and (chunks / MANIFEST_NAME).is_file()
@@ -516,12 +525,9 @@ def test_one_run_per_output(small, tmp_path, capsys):
         err = capsys.readouterr().err
         assert f"another run is writing it (pid {proc.pid} on" in err
         assert len(err.strip().splitlines()) == 1
-        proc.send_signal(signal.SIGKILL)
-        proc.communicate(timeout=30)
+        _sigkill(proc)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        _reap(proc)
     assert lock.exists()                       # SIGKILL: nothing removed it
     with pytest.warns(UserWarning, match=rf"taking over the lock of pid {proc.pid}"):
         res = run_mission(small.mission, out=out, cache_dir=small.cache, overwrite=True,
