@@ -990,7 +990,9 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
         raise ConfigError(f"--out {out}: the results file must end in .nc")
     if out.is_dir():
         raise ConfigError(f"--out {out}: is a directory; give a results file name (*.nc)")
-    if out.parent != Path(".") and out.parent.is_dir():
+    if out == default_output(mission_path):
+        out.parent.mkdir(parents=True, exist_ok=True)   # outputs/: made for the default
+    if out.parent.is_dir():
         with _output_lock(out):
             return _run_locked(mission_path, out, overrides=overrides, tier=tier, seed=seed,
                                overwrite=overwrite, progress=progress, cache_dir=cache_dir,
@@ -1067,11 +1069,8 @@ def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, pr
     if plan.n_shots == 0:
         raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
                           f"{sv.prf_hz:g} Hz holds no shot")
-    if out.parent != Path(".") and not out.parent.is_dir():
-        if out == default_output(mission_path):
-            out.parent.mkdir(parents=True, exist_ok=True)
-        else:
-            raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+    if not out.parent.is_dir():   # (the default's outputs/ is made before the lock)
+        raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
     timings = {"prepare_s": time.perf_counter() - t0}
 
     config_toml = _config_toml(config)
