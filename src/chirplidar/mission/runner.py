@@ -21,10 +21,14 @@ the same file as a serial run.
 
 The chunk directory also holds ``manifest.json`` (written atomically before any chunk): mission
 file, resolved configuration and its SHA-256, seed, tier, scene file and the SHA-256 of its
-text, shot and chunk counts, software version and the ``date_created`` of the run, so that a
-resumed run (``resume=True``) writes the same global attributes as an uninterrupted one. A run
-killed at any moment loses no finished chunk; ``--resume`` skips them, removes temp files of
-killed writes and refuses a manifest that does not match the current run.
+text, the SHA-256 of the terrain's DEM or mesh file, shot and chunk counts, software version and
+the ``date_created`` of the run, so that a resumed run (``resume=True``) writes the same global
+attributes as an uninterrupted one. A run killed at any moment loses no finished chunk;
+``--resume`` skips them, removes temp files of killed writes and refuses a manifest that does
+not match the current run. Each chunk is sealed (``chunk_NNNNN.json``: index, run, SHA-256,
+:class:`results.ChunkWriter`): a resumed run computes again, with a warning naming it, any chunk
+whose seal does not vouch for it, and the merge checks each seal before copying a chunk. The
+output is locked (``<out>.lock``, :func:`_output_lock`) for the run's life.
 
 Finished chunks are appended to the results file in chunk order as soon as they and the
 chunks before them exist (:class:`results.ChunkMerge`: a temp file beside the output, renamed
@@ -36,7 +40,7 @@ with ``workers=N`` this process does it while the workers compute later chunks (
 ``scheduler``, whose workers may be threads of this process, after the last chunk: netCDF
 calls must not run in two threads at once). The summary's first pass reads the chunks as they
 are appended. When every chunk is in, the file is renamed into place, the summary is finished
-and the chunk directory is removed.
+and the chunk directory is removed once the file has been read back (every variable).
 
 ``workers=N`` (N > 1) runs the chunks on a ``dask.distributed.LocalCluster(n_workers=N,
 threads_per_worker=1, processes=True)``; ``scheduler=ADDRESS`` on an existing cluster (the
@@ -387,7 +391,8 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
 
 
 def _run_id(job: ChunkJob) -> str:
-    """The identity a run's chunks are sealed with: its configuration and creation date."""
+    """The identity a run's chunks are sealed with: its configuration, scene and creation
+    date."""
     return f"{job.configuration_sha256}/{job.scene_sha256}/{job.date_created}"
 
 
