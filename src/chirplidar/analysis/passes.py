@@ -214,12 +214,6 @@ class OrbitSource:
     scene_overrides: dict | None = None
 
 
-def _iso(mjd: float) -> str:
-    """ISO 8601 UTC (ms) of an MJD (UTC)."""
-    s = (mjd - eo.MJD_UNIX_EPOCH) * 86400.0
-    return eo.utc_iso(_dt.datetime.fromtimestamp(s, _dt.timezone.utc))
-
-
 def orbit_from_tle_file(path, start_utc) -> OrbitSource:
     """SGP4 orbit of a TLE file: 2 lines, or 3 (a name line first); t_s = 0 at ``start_utc``.
     ValueError naming the file on a bad file or checksum."""
@@ -239,7 +233,7 @@ def orbit_from_tle_file(path, start_utc) -> OrbitSource:
     except ValueError as exc:
         raise ValueError(f"{p}: {exc}") from None
     name = lines[0].strip().removeprefix("0 ") if len(lines) == 3 else f"NORAD {l1[2:7].strip()}"
-    return OrbitSource(orbit, name, _iso(orbit.tle_epoch_mjd))
+    return OrbitSource(orbit, name, eo.mjd_iso(orbit.tle_epoch_mjd))
 
 
 def orbit_from_mission(path, start_utc) -> OrbitSource:
@@ -269,7 +263,7 @@ def orbit_from_mission(path, start_utc) -> OrbitSource:
         except ValueError as exc:
             raise ConfigError(f"{src}: platform.tle.{exc}") from None
         return OrbitSource(orbit, f"NORAD {orbit.line1[2:7].strip()} ({Path(path).name})",
-                           _iso(orbit.tle_epoch_mjd), beams, att, steering, scene, changes)
+                           eo.mjd_iso(orbit.tle_epoch_mjd), beams, att, steering, scene, changes)
     if scene is None or cfg.survey is None:
         raise ConfigError(f"{src}: a design orbit ([platform.orbit]) is placed over the "
                           "mission's [scene] at survey.epoch_utc: both are needed")
@@ -464,7 +458,7 @@ def _describe(orbit, region, tc, ti, to, t0, t1, beams, attitude, height, steeri
                 bl, bo, _ = frames.ecef_to_geodetic(*h.T)
                 xy = np.column_stack(region.to_xy(bo, bl))
             tracks.append({"beam": k, "track_lonlat": _clip(region, xy)})
-    utc = [_iso(orbit.epoch_mjd + x / 86400.0) for x in (ti, to, tc)]
+    utc = [eo.mjd_iso(orbit.epoch_mjd + x / 86400.0) for x in (ti, to, tc)]
     return Pass(utc[0], utc[1], "ascending" if v[0] @ enu[1] > 0 else "descending",
                 round(to - ti, 3), utc[2],
                 round(float(_distance_m(region.centre_lonlat, lon, lat)[0]) / 1e3, 4),

@@ -32,6 +32,7 @@ __all__ = [
     "EarthOrientationWarning",
     "MJD_UNIX_EPOCH",
     "gmst82_rad",
+    "mjd_iso",
     "mjd_utc",
     "parse_utc",
     "polar_motion_rad",
@@ -68,6 +69,12 @@ def utc_iso(value: _dt.datetime) -> str:
     """ISO 8601 UTC with a Z and whole milliseconds (e.g. ``2026-11-01T03:04:05.250Z``)."""
     v = value.astimezone(_dt.timezone.utc)
     return v.strftime("%Y-%m-%dT%H:%M:%S.") + f"{v.microsecond // 1000:03d}Z"
+
+
+def mjd_iso(mjd: float) -> str:
+    """:func:`utc_iso` of a Modified Julian Date (UTC); the inverse of :func:`mjd_utc`."""
+    return utc_iso(_dt.datetime.fromtimestamp((float(mjd) - MJD_UNIX_EPOCH) * 86400.0,
+                                              _dt.timezone.utc))
 
 
 def mjd_utc(value) -> float:
@@ -108,8 +115,7 @@ def _warn_outside(mjd: np.ndarray) -> None:
     lo, hi = table_span_mjd()
     if mjd.size and (np.min(mjd) < lo or np.max(mjd) > hi):
         def day(m):
-            return utc_iso(_dt.datetime.fromtimestamp((m - MJD_UNIX_EPOCH) * 86400.0,
-                                                      _dt.timezone.utc))[:10]
+            return mjd_iso(m)[:10]
         bad = float(np.min(mjd)) if np.min(mjd) < lo else float(np.max(mjd))
         warnings.warn(f"{day(bad)} lies outside the IERS Earth-orientation table shipped with "
                       f"astropy-iers-data ({day(lo)} .. {day(hi)}): UT1 - UTC and polar motion "

@@ -491,17 +491,17 @@ def check_range_window(config, source: str) -> None:
     if w is None:
         return
     bud = make_budget(config)
-    span = bud.rate_hz_per_s * 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S
+    lag_span = 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S   # near to far edge
+    span = bud.rate_hz_per_s * lag_span                                    # its beats [Hz]
     top = peak_search_max_hz(config, bud)
     room = top - config.processing.highpass_hz
-    lag_span = 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S
     if lag_span >= bud.train.rise_s:
         raise ConfigError(f"{source}: survey.range_window_m = {w:g} m is longer than the chirp: "
                           f"its far edge lags the reference by {lag_span * 1e6:.3g} us, beyond "
                           f"the {bud.train.rise_s * 1e6:.3g} us ramp (no overlap, and ranges "
                           "would alias by c T / 2)")
     if span > room:
-        w_max = room / bud.rate_hz_per_s * SPEED_OF_LIGHT_M_S / (2.0 * config.channel.group_index)
+        w_max = w * room / span
         raise ConfigError(f"{source}: survey.range_window_m = {w:g} m needs beats from "
                           f"{config.processing.highpass_hz / 1e6:g} to "
                           f"{(config.processing.highpass_hz + span) / 1e6:.3g} MHz, above the "
