@@ -183,7 +183,9 @@ def test_screen_pixels_bounds_are_clear_errors():
     with pytest.raises(ConfigError, match="screen_pixels"):
         load_mission(CH5, TURB + ["effects.turbulence.screen_pixels=8"])          # below 16
     with pytest.raises(ValueError, match="coarser than r0"):
-        _fading(["atm.Cn2=3e-12", "effects.turbulence.screen_pixels=16"])        # D/r0 ~ 25
+        # D/r0 ~ 25 over 10 m (Rytov variance 0.16: over 100 m it would be 1.07, outside the
+        # weak-fluctuation theory, which the configuration refuses first)
+        _fading(["atm.dst=10", "atm.Cn2=3e-11", "effects.turbulence.screen_pixels=16"])
 
 
 # ------------------------------------------------------------------------------- tiers timing

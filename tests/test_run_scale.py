@@ -581,6 +581,38 @@ def test_resume_refuses_a_changed_dem(tmp_path, monkeypatch):
     assert res.summary["shots"] == 200
 
 
+def test_resume_refuses_a_changed_mesh(tmp_path, monkeypatch):
+    """Issue 15: as for a DEM, a terrain mesh file changed between a stopped run and --resume is
+    refused, naming the file."""
+    from conftest import write_uav_mission
+
+    mesh = tmp_path / "plane.obj"
+
+    def write_mesh(height):   # a 3 km square at one height, metres from the scene centre
+        mesh.write_text("".join(f"v {x} {y} {height}\n" for x, y in
+                                ((-1500, -1500), (1500, -1500), (1500, 1500), (-1500, 1500)))
+                        + "f 1 2 3\nf 1 3 4\n")
+
+    write_mesh(100.0)
+    scene = tmp_path / "mesh_scene.toml"
+    scene.write_text('name = "mesh"\nepsg = 3413\neffects = []\n[terrain]\nsource = "mesh"\n'
+                     'center_lat_deg = 69.0\ncenter_lon_deg = -49.0\n[terrain.mesh]\n'
+                     'path = "plane.obj"\ncoordinates = "scene_centre"\nmaterial = "snow"\n'
+                     '[atmosphere]\ncn2_profile = "none"\nextinction_per_m = 0.0\n'
+                     'scale_height_m = 1200.0\n')
+    mission = write_uav_mission(tmp_path, scene, "mesh_uav", altitude=600.0,
+                                waypoints="[[-800.0, 0.0], [800.0, 0.0]]", stop="10.0",
+                                extra="chunk_shots = 50")
+    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
+    out, chunks = _interrupted(small, tmp_path, monkeypatch, after=2)
+    write_mesh(110.0)                                  # the mesh changes on disk
+    with pytest.raises(ConfigError, match=rf"terrain file\(s\) {re.escape(str(mesh))} changed"):
+        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    write_mesh(100.0)                                  # the same surface again: resumes
+    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    assert res.summary["shots"] == 200
+
+
 def test_the_results_file_is_read_back_before_the_chunks_go(small, tmp_path):
     """verify_results_file (run before the chunk folder is deleted) reads every variable: the
     serial run's file passes; a copy with 64 bytes inverted in its data, or cut short, fails

@@ -400,11 +400,11 @@ def test_unknown_key_with_close_match(tmp_path):
     with pytest.raises(ConfigError) as exc:
         load_scene(p)
     msg = str(exc.value)
-    assert f"{p}: terrain.resolution: unknown key; did you mean: terrain.resolution_m" in msg
-    assert "terrain.flat.heigth_m: unknown key; did you mean: terrain.flat.height_m" in msg
-    assert "terrain.flat.height_m: missing key" in msg
+    assert "; terrain.resolution: unknown key (did you mean: terrain.resolution_m" in msg
+    assert "terrain.flat.heigth_m: unknown key (did you mean: terrain.flat.height_m," in msg
+    assert f"{p}: missing key terrain.flat.height_m; " in msg
     bad = write(tmp_path, flat_text(atmosphere=ATMOSPHERE + "[materials.snow]\nreflectance = 1\n"))
-    with pytest.raises(ConfigError, match=r"materials\.snow\.reflectance: unknown key; did you "
+    with pytest.raises(ConfigError, match=r"materials\.snow\.reflectance: unknown key \(did you "
                        r"mean: materials\.snow\.reflectivity"):
         load_scene(bad)
 
@@ -464,7 +464,7 @@ def test_synthetic_scene_overrides_and_rebuild_from_text(tmp_path):
                             use_cache=False)
     np.testing.assert_array_equal(again.terrain.mesh.vertices, s.terrain.mesh.vertices)
     np.testing.assert_array_equal(again.terrain.face_materials, s.terrain.face_materials)
-    with pytest.raises(ConfigError, match=r"terrain\.resolutionm: unknown key; did you mean: "
+    with pytest.raises(ConfigError, match=r"terrain\.resolutionm: unknown key \(did you mean: "
                        r"terrain\.resolution_m"):
         load_scene(p, cache_dir=tmp_path / "c", overrides={"terrain.resolutionm": 10})
 

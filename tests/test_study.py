@@ -710,7 +710,7 @@ def test_cli_plot_that_cannot_be_saved_leaves_no_study_file(flat, tmp_path, caps
 
 @pytest.mark.parametrize("vary, extra, words", [
     (["platform.uav.altitud_m=100:1000:3"], [],
-     "unknown key 'platform.uav.altitud_m'; did you mean: platform.uav.altitude_m"),
+     "unknown key 'platform.uav.altitud_m' (did you mean: platform.uav.altitude_m,"),
     (["platform.uav.altitude_m=100:1000:1"], [], "N >= 2"),
     (["scene.terrain.flat.material=snow,slush"], [], "unknown material 'slush'"),
     (["lsr.Po=0.01,0.02", "survey.prf_hz=10,20", "platform.uav.speed_mps=10,20"], [],

@@ -2,8 +2,11 @@
 ``plan``, ``passes``, ``bench`` and ``demo``.
 
 Exit codes: 0 success, 1 a run finished but a requested product could not be made (e.g. no
-spectrum to plot), 2 bad input (configuration error, unknown name, bad option), 130 interrupted.
-Configuration errors are printed to stderr without a traceback.
+spectrum to plot), or ``run`` stopped by another fault (e.g. its Dask scheduler lost), 2 bad input
+(configuration error, unknown name, bad option, an unreadable input or unwritable output folder),
+74 a file could not be written (disk full, permission denied, I/O error), 130 interrupted.
+Configuration errors and faults are printed to stderr in one line, without a traceback
+(``CHIRPLIDAR_DEBUG=1`` prints it too).
 
 JSON output has no infinities: a non-finite number is written as ``null``. For the dB outputs
 (dBm, dBm/Hz, dB) ``null`` means -inf dB, i.e. zero power (e.g. ``Psig`` with no return).
@@ -14,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 import warnings
@@ -274,17 +278,46 @@ def cmd_run(args) -> int:
     from .mission.runner import format_summary, run_mission
 
     _check_cluster_args(args)
+    if args.dry_run:
+        return _dry_run(args)
     try:
         result = run_mission(args.mission, overrides=args.set or [], tier=args.tier, out=args.out,
                              seed=args.seed, overwrite=args.overwrite,
                              progress=not args.no_progress, workers=args.workers,
-                             scheduler=args.scheduler, resume=args.resume)
+                             scheduler=args.scheduler, resume=args.resume, yes=args.yes)
     except FileExistsError as exc:
         raise UsageError(str(exc)) from None
     if args.json:
         print(_dump_json({k: _json_number(v) for k, v in result.summary.items()}))
     else:
         print(format_summary(result.summary))
+    return 0
+
+
+def _dry_run(args) -> int:
+    """``run --dry-run``: the checks, warnings and size of the run; nothing is written."""
+    from .mission import preflight
+    from .mission.runner import preflight_run
+
+    with warnings.catch_warnings():   # the report lists them
+        warnings.simplefilter("ignore", preflight.PlannerWarning)
+        config, scene, plan, estimate = preflight_run(
+            args.mission, overrides=args.set or [], tier=args.tier, seed=args.seed,
+            cores=args.workers or 1)
+    report = {"mission": str(args.mission), "tier": config.survey.tier,
+              "platform": config.platform.kind, "scene": str(scene.path), **estimate.as_dict(),
+              "large": estimate.large,
+              "planner_warnings": preflight.planner_warnings(config, scene, plan)}
+    if args.json:
+        print(_dump_json({k: _json_number(v) for k, v in report.items()}))
+    else:
+        print(f"{args.mission}: {config.survey.tier} tier, {config.platform.kind} over "
+              f"{Path(scene.path).name}")
+        print(f"  {preflight.format_estimate(estimate)}")
+        if estimate.large:
+            print("  a large run: `chirplidar run` needs --yes to start it")
+        for text in report["planner_warnings"]:
+            print(f"  warning: {text}")
     return 0
 
 
@@ -846,6 +879,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "compute only the missing ones (refused if the run differs)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check everything, print the planner's warnings and the run's size "
+                        "(shots, estimated time from a short timed pilot, disk), and stop")
+    p.add_argument("--yes", action="store_true",
+                   help="start a large run (estimated above 2 h or 20 GB), which is otherwise "
+                        "refused")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("coverage", help="grid the footprints of results files: coverage, "
@@ -1077,6 +1116,44 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("chirplidar: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:   # faults in one line; bugs keep their traceback
+        fault = _fault_line(args.command, exc)
+        if fault is None:
+            raise
+        if _debug():
+            import traceback
+
+            traceback.print_exc()
+        print(f"chirplidar {args.command}: {fault[0]}", file=sys.stderr)
+        return fault[1]
+
+
+#: Environment variable: print the traceback of an error that is otherwise shown in one line.
+DEBUG_ENV = "CHIRPLIDAR_DEBUG"
+#: Exit code of a file-system fault (disk full, permission denied, I/O error): EX_IOERR.
+EXIT_IO = 74
+
+
+def _debug() -> bool:
+    return os.environ.get(DEBUG_ENV, "").strip() not in ("", "0")
+
+
+def _fault_line(command: str, exc: Exception) -> tuple[str, int] | None:
+    """(one line, exit code) for an error that is not a bug of the command: a run's fault
+    (``runner.RunError``: its own line and code), an OS error of the file system (its file and
+    reason, :data:`EXIT_IO`); in ``run``, any other error too (what failed, exit code 1).
+    None: let it raise (traceback)."""
+    runner = sys.modules.get("chirplidar.mission.runner")
+    if runner is not None and isinstance(exc, getattr(runner, "RunError", ())):
+        return str(exc), exc.exit_code
+    if isinstance(exc, OSError) and isinstance(exc.errno, int) and exc.errno > 0 \
+            and exc.filename is not None:
+        return f"{exc.filename}: {os.strerror(exc.errno).lower()}", EXIT_IO
+    if command == "run":
+        text = (str(exc).strip().splitlines() or [""])[0]
+        what = type(exc).__name__ + (f": {text}" if text else "")
+        return f"failed: {what} ({DEBUG_ENV}=1 prints the traceback)", 1
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover

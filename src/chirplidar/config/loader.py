@@ -80,7 +80,7 @@ def _unknown_key_message(key: str, source: str) -> str:
         # Match on the last component too: 'chrp.F3' -> chrp.F2, 'F2' -> chrp.F2.
         leaf = key.rsplit(".", 1)[-1].lower()
         close = [k for k in ALL_KEYS if k.rsplit(".", 1)[-1].lower() == leaf][:5]
-    hint = f"; did you mean: {', '.join(close)}" if close else ""
+    hint = f" (did you mean: {', '.join(close)}?)" if close else ""
     return f"{source}: unknown key '{key}'{hint}"
 
 
@@ -129,25 +129,37 @@ def parse_set(assignment: str) -> tuple[str, Any]:
     return key, value
 
 
+#: At most this many problems are listed in a validation message (then "and N more").
+MAX_LISTED_PROBLEMS = 6
+
+
 def _format_validation(err: ValidationError, source: str) -> str:
-    lines = []
+    """One line: the source, then each problem (missing keys together), ``; ``-separated."""
+    missing, problems = [], []
     for e in err.errors():
         loc = ".".join(str(p) for p in e["loc"] if p != "__root__")
         thesis = [t for t, k in THESIS_TO_KEY.items() if k == loc]
         also = f" ({thesis[0]})" if thesis else ""
         if e["type"] == "missing":
-            lines.append(f"{source}: missing key '{loc}'{also}")
+            missing.append(f"'{loc}'{also}")
         elif e["type"] == "extra_forbidden":
-            lines.append(_unknown_key_message(loc, source))
+            problems.append(_unknown_key_message(loc, source).removeprefix(f"{source}: "))
         else:
             msg = e["msg"].removeprefix("Value error, ")
-            if not loc or isinstance(e.get("input"), dict):
+            value = e.get("input")
+            if isinstance(value, float) and value != value:
+                msg = "not a number (NaN)" if msg.startswith("Input should be") else msg
+            if not loc or isinstance(value, dict):
                 # a section's own check: its message names the keys; the section's whole
                 # contents would bury it
-                lines.append(f"{source}: {msg}")
+                problems.append(msg)
             else:
-                lines.append(f"{source}: '{loc}'{also}: {msg} (got {e.get('input')!r})")
-    return "\n".join(lines)
+                problems.append(f"'{loc}'{also}: {msg} (got {value!r})")
+    if missing:
+        problems.insert(0, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    more = len(problems) - MAX_LISTED_PROBLEMS
+    listed = problems[:MAX_LISTED_PROBLEMS] + ([f"and {more} more"] if more > 0 else [])
+    return f"{source}: {'; '.join(listed)}"
 
 
 def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
@@ -184,6 +196,9 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     parent = tree.pop("extends", None)
+    if parent is not None and not (isinstance(parent, str) and parent.strip()):
+        raise ConfigError(f"{path}: 'extends' must name a mission file (a path in quotes), "
+                          f"got {parent!r}")
     flat = _canonical(_flatten(tree), str(path))
     if parent is None:
         return flat

@@ -10,6 +10,7 @@ The thesis names of Tables 4.1-4.9 and 4.11 map onto these keys in :mod:`chirpli
 
 from __future__ import annotations
 
+import typing
 from typing import Literal
 
 import numpy as np
@@ -32,9 +33,48 @@ def _translate(value, table: str):
     return value
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+#: Any key in dB beyond +-this is refused: 10^30 is no gain, loss or SNR an instrument has,
+#: and powers that far apart overflow the single-precision records.
+MAX_DB = 300.0
+#: A chirp's frequency ramp must span at least this many samples to be a chirp at all.
+MIN_RAMP_SAMPLES = 4
 
+
+def _accepts_bool(annotation) -> bool:
+    if annotation is bool:
+        return True
+    return any(_accepts_bool(a) for a in typing.get_args(annotation))
+
+
+class StrictModel(BaseModel):
+    """The base of every configuration model (missions and scenes): unknown keys are errors,
+    inf and NaN are refused (a field that means something by inf says so), and a number is
+    never read from ``true``/``false`` (pydantic would read ``speed_mps = true`` as 1)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True,
+                              allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_for_a_number(cls, value, info):
+        if isinstance(value, bool) and info.field_name in cls.model_fields and \
+                not _accepts_bool(cls.model_fields[info.field_name].annotation):
+            raise ValueError("expected a number or text, not true or false")
+        if info.field_name.endswith("_db") and isinstance(value, (int, float)) and \
+                not isinstance(value, bool) and abs(value) > MAX_DB and abs(value) != np.inf:
+            raise ValueError(f"{value:g} dB is a power ratio beyond 1e{MAX_DB / 10:.0f}: not "
+                             "a physical gain, loss or SNR (is it in linear units?)")
+        return value
+
+
+_Model = StrictModel
+
+
+#: Seeds are stored as a signed 64-bit NetCDF attribute.
+MAX_SEED = 2**63 - 1
+#: A chunk holds ~2 kB per shot and beam with 7 sub-rays (measured on the Greenland UAV demo:
+#: 0.35 GB at 20 000 shots, 0.63 GB at 159 000), so a million shots is ~2 GB per beam.
+MAX_CHUNK_SHOTS = 1_000_000
 
 Positive = Field(gt=0)
 NonNegative = Field(ge=0)
@@ -111,7 +151,9 @@ class Processing(_Model):
         "Gaussian interpolation; 'dtft' = the exact DTFT near the peak, interpolated from the FFT "
         "bins with the Dirichlet kernel, maximised on a fine grid (no scalloping)")
     noise_span_hz: float = Field(
-        4e6, gt=0, description="span around the peak over which the noise level is averaged")
+        4e6, gt=0, description="span around the peak over which the noise level is averaged; "
+        "where the tone's own skirt is not flat there, the window (span / 2 - guard each side) "
+        "is stepped outward, up to 16 steps, to the first one beyond the skirt")
     doppler_recovery: Literal["none", "squaring"] = Field(
         "none", description="'squaring' squares the real beat record and reads the line at "
         "2 f_R, which Doppler does not move (thesis Appendix D; rf tier, homodyne receivers)")
@@ -122,7 +164,7 @@ class Processing(_Model):
     noise_guard_hz: float = Field(
         1e6, gt=0, description="half-width around the peak excluded from the noise average: keeps "
         "the tone's own sidelobes out of the noise reading (the thesis reads the noise over a "
-        "'flat' region, Sec. 2.6)")
+        "'flat' region, Sec. 2.6); the least one: a strong tone's skirt moves the window out")
 
 
 class Waveform(_Model):
@@ -185,7 +227,8 @@ class Transmitter(_Model):
 class Channel(_Model):
     """Thesis Table 4.6 (``atm``) plus group index and carrier-phase handling."""
 
-    extra_attenuation_db: float = Field(description="atm.Pattn (applies in both states)")
+    extra_attenuation_db: float = Field(gt=-np.inf, allow_inf_nan=True, description="atm.Pattn "
+                                        "(applies in both states; inf: no signal at all)")
     free_space: bool = Field(description="atm.state: off = lab-bench fiber channel")
     distance_m: float = Field(ge=0, description="atm.dst, one-way distance")
     group_index: float = Field(ge=1, description="group index of the path (fiber 1.46, air 1.0003)")
@@ -328,7 +371,8 @@ class TurbulenceEffect(_Model):
     """
 
     fading: Literal["mean", "frozen_flow"]
-    outer_scale_m: float = Field(gt=0, description="von Karman outer scale (finite for "
+    outer_scale_m: float = Field(gt=0, allow_inf_nan=True, description="von Karman outer scale "
+                                 "(inf: Kolmogorov; finite for "
                                  "frozen flow; the phase covariance needs it)")
     transverse_speed_mps: float | None = Field(None, ge=0, description="screen speed across the "
                                                "beam (frozen_flow)")
@@ -473,6 +517,9 @@ class UavPlatform(_Survey2D):
 
     @model_validator(mode="after")
     def _climb_limits(self):
+        if self.altitude_mode == "above_ground" and self.altitude_m <= 0:
+            raise ValueError(f"platform.uav.altitude_m = {self.altitude_m:g} m with altitude_mode "
+                             "= 'above_ground' is not above the ground: give a height > 0")
         if (self.max_climb_mps is None) != (self.max_descent_mps is None):
             raise ValueError("platform.uav.max_climb_mps and max_descent_mps go together")
         if self.max_climb_mps is not None and self.altitude_mode != "above_ground":
@@ -493,8 +540,9 @@ class OrbitPlatform(_Model):
     """Keplerian elements with J2 drift; the orbit is placed so its nadir point passes the scene
     centre at t = 0 (the RAAN and the anomaly are solved for, on the chosen pass)."""
 
-    altitude_m: float = Field(gt=100e3, description="height of the satellite above the WGS-84 "
-                              "ellipsoid where its nadir crosses the scene centre (t = 0)")
+    altitude_m: float = Field(gt=100e3, le=36_000e3, description="height of the satellite "
+                              "above the WGS-84 ellipsoid where its nadir crosses the scene "
+                              "centre (t = 0); low Earth orbit up to geostationary height")
     eccentricity: float = Field(ge=0, lt=0.1)
     inclination_deg: float = Field(gt=0, lt=180)
     pass_direction: Literal["ascending", "descending"]
@@ -570,6 +618,16 @@ class Beams(_Model):
         if missing:
             raise ValueError(f"beams.pattern = '{self.pattern}' needs "
                              f"{', '.join('beams.' + k for k in missing)}")
+        if self.pattern == "paired":
+            if self.within_pair_deg >= self.pair_spacing_deg:
+                raise ValueError(f"beams.within_pair_deg ({self.within_pair_deg:g}) must be "
+                                 f"smaller than beams.pair_spacing_deg ({self.pair_spacing_deg:g})"
+                                 ": the pairs would overlap")
+            widest = self.pair_spacing_deg + self.within_pair_deg / 2 + self.stagger_deg
+            if widest >= 60:
+                raise ValueError(f"beams.pair_spacing_deg + within_pair_deg / 2 + stagger_deg "
+                                 f"= {widest:g} deg: the outer beams must stay within 60 deg of "
+                                 "nadir (as custom and conical beams)")
         if self.pattern == "custom":
             if len(self.off_nadir_deg) != len(self.azimuth_deg) or not self.off_nadir_deg:
                 raise ValueError("beams.off_nadir_deg and beams.azimuth_deg must be non-empty "
@@ -616,7 +674,8 @@ class SurveyRun(_Model):
                                          "flagged (omitted: system.reference_delay_s or its "
                                          "sys.fmaxopt rule)")
     subrays_per_beam: int = Field(ge=1, le=512, description="footprint samples per beam")
-    chunk_shots: int = Field(20000, ge=1, description="shots per chunk (memory bound and "
+    chunk_shots: int = Field(20000, ge=1, le=MAX_CHUNK_SHOTS, description="shots per chunk "
+                             "(memory bound and "
                              "resume granularity)")
 
     @field_validator("epoch_utc", "start_utc", "stop_utc", mode="before")
@@ -676,7 +735,7 @@ class MissionConfig(_Model):
     heterodyne: Heterodyne
     effects: Effects = Effects()
     sweep: Sweep = Sweep()
-    seed: int = Field(ge=0, description="seed of the run's numpy Generator")
+    seed: int = Field(ge=0, le=MAX_SEED, description="seed of the run's numpy Generator")
     # Survey (chirplidar run): optional for transceiver-only files.
     scene: SceneRef | None = None
     platform: Platform | None = None
@@ -700,6 +759,22 @@ class MissionConfig(_Model):
         return self
 
     @model_validator(mode="after")
+    def _weak_turbulence(self):
+        ch = self.channel
+        if "turbulence" in self.effects.enabled and ch.free_space and ch.cn2_m_minus_2_3 > 0:
+            from ..atmosphere.turbulence import rytov_variance
+
+            sigma2 = float(rytov_variance(ch.cn2_m_minus_2_3, self.laser.wavelength_m,
+                                          ch.distance_m, "plane"))
+            if sigma2 >= 1.0:
+                raise ValueError(
+                    f"channel.cn2_m_minus_2_3 (atm.Cn2) = {ch.cn2_m_minus_2_3:g} over "
+                    f"channel.distance_m (atm.dst) = {ch.distance_m:g} m gives a plane-wave "
+                    f"Rytov variance of {sigma2:.3g} >= 1: strong fluctuations, outside the "
+                    "weak-turbulence theory the turbulence effect uses; lower atm.Cn2 or atm.dst")
+        return self
+
+    @model_validator(mode="after")
     def _sampling(self):
         nyq = self.simulation.sample_rate_hz / 2
         f_top = self.waveform.f_stop_hz + self.waveform.f_offset_hz
@@ -708,6 +783,12 @@ class MissionConfig(_Model):
                 f"waveform.f_stop_hz + f_offset_hz (chrp.F2 + chrp.F0 = {f_top:g} Hz) is at or above "
                 f"the Nyquist frequency sample_rate_hz/2 (sims.Fs/2 = {nyq:g} Hz): the chirp cannot "
                 "be represented; raise sims.Fs or lower chrp.F2")
+        rise_s = self.waveform.ramp_duty_cycle * self.waveform.chirp_period_s
+        if rise_s * self.simulation.sample_rate_hz < MIN_RAMP_SAMPLES:
+            raise ValueError(
+                f"the frequency ramp lasts waveform.ramp_duty_cycle x chirp_period_s (chrp.rdcyc "
+                f"x chrp.Tchp) = {rise_s:.3g} s, less than {MIN_RAMP_SAMPLES} samples at "
+                f"sims.Fs = {self.simulation.sample_rate_hz:g} Hz: no chirp to sample")
         if self.waveform.f_start_hz + self.waveform.f_offset_hz < 0:
             raise ValueError("waveform.f_start_hz + f_offset_hz (chrp.F1 + chrp.F0) is negative")
         if self.waveform.chirp_period_s > self.simulation.duration_s * (1 + 1e-9):

@@ -89,6 +89,10 @@ def _unit_rows(v):
 # --------------------------------------------------------------------------------------------
 
 
+class OffTerrainError(ValueError):
+    """A path that must follow the ground never passes over the terrain."""
+
+
 @dataclass(frozen=True)
 class UavPath:
     """Constant-speed flight along a 3-D polyline in the scene frame.
@@ -163,7 +167,10 @@ class UavPath:
         p, _ = self._locate(s / self.speed_mps)
         ground = np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
         if not np.any(np.isfinite(ground)):
-            raise ValueError("the path never passes over the terrain: no ground to follow")
+            raise OffTerrainError(
+                f"the path (x {p[:, 0].min():.0f}..{p[:, 0].max():.0f} m, y "
+                f"{p[:, 1].min():.0f}..{p[:, 1].max():.0f} m) never passes over the terrain: "
+                "altitude_mode = 'above_ground' has no ground to follow")
         ok = np.isfinite(ground)   # off the terrain: hold the nearest known ground height
         ground = np.interp(s, s[ok], ground[ok])
         # Heights may differ from waypoint to waypoint: the clearance is the waypoints' own.
@@ -278,6 +285,10 @@ def lawnmower_width(polygon_xy, heading_rad) -> float:
     return float(rot.bounds[3] - rot.bounds[1])
 
 
+#: A lawnmower of more lines than this is a typo (a spacing in km, or 1e-3 for 1e3), not a plan.
+MAX_SURVEY_LINES = 10_000
+
+
 def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     """Boustrophedon survey lines covering ``polygon_xy``; list of ``(start_xy, end_xy)``.
 
@@ -293,7 +304,11 @@ def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     hdg = _checks.real_scalar("heading_rad", heading_rad)
     rot, ang = _rotated_to_lines(poly, hdg)
     xmin, ymin, xmax, ymax = rot.bounds
-    n = max(1, int(np.ceil((ymax - ymin) / dx - 1e-9)))
+    n_float = np.ceil((ymax - ymin) / dx - 1e-9)
+    if n_float > MAX_SURVEY_LINES:
+        raise ValueError(f"line_spacing_m = {dx:g} m gives {n_float:.3g} lines across the "
+                         f"{ymax - ymin:.0f} m polygon (more than {MAX_SURVEY_LINES})")
+    n = max(1, int(n_float))
     y0 = 0.5 * (ymin + ymax) - 0.5 * (n - 1) * dx  # centre the strips on the extent
     lines = []
     c, s = np.cos(ang), np.sin(ang)

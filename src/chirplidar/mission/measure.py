@@ -85,6 +85,14 @@ which must lie in the processed band (:func:`check_range_window`):
 
 A return outside the window is flagged ``outside_range_gate`` (``detected = 3``): the
 instrument does not look there, and its beat would alias or leave the band.
+
+Without a window the reference delay is the configuration's (``system.reference_delay_s``, or
+the ``sys.fmaxopt`` rule). A return whose delay lies outside [tau_ref, tau_ref + T) (T the chirp
+period) beats like one whole periods away: its range would be off by a multiple of c T / 2n. It
+is flagged ``range_ambiguous`` (``detected = 5``, whatever its SNR) and has no measured range.
+A link-tier node whose chirps do not overlap has no tone (SNR 0): the shots it would be
+interpolated into are evaluated on nodes at a lag with overlap, scaled by their own overlap
+(:func:`_unread_nodes`); a shot with no tone has no SNR (the fill value), never a sentinel.
 """
 
 from __future__ import annotations
@@ -102,6 +110,7 @@ from ..target import (
 )
 from ..tiers.budget import make_budget, reference_delay_s
 from ..tiers.common import beat_flags, doppler_line_hz, optimal_phase
+from ..tiers.common import range_ambiguous as _range_ambiguous
 from ..tiers.link import (
     carrier_fading_factor,
     crb_sigma_f_hz,
@@ -454,15 +463,19 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool, lag_s: float | No
     if doppler and config.system.receiver == "coherent":
         # Appendix D: a resolved Doppler shift splits the real homodyne line; the factor is the
         # link tier's own (it depends on the carrier-phase convention), read at one node.
-        r = float(r_nodes[0])
-        f_big = 20.0 / t_ov[0]
+        # (at the first range node with a tone: a node whose chirps do not overlap has none)
+        i0 = int(np.argmax(np.isfinite(snr_db[:, 0])))
+        r = float(r_nodes[i0])
+        f_big = 20.0 / t_ov[i0]
         dop = config_with(at_range(_node_config(config, (["phase_noise"] if lw else [])
                                                 + ["doppler"]), r),
                           {"effects.doppler.radial_velocity_mps": f_big * config.laser.wavelength_m / 2,
                            "channel.extra_attenuation_db": float(a_nodes[0])})
         on = simulate_link(dop, rng, batch=1)["SNR"][0]
-        split = float(db_to_ratio(on - snr_db[0, 0]))
-    snr_db = np.where(np.isfinite(snr_db), snr_db, -300.0)
+        split = float(db_to_ratio(on - snr_db[i0, 0])) if np.isfinite(snr_db[i0, 0]) else np.nan
+    # A node without a tone (no chirp overlap at its lag, no LO) has SNR 0 (-inf dB): NaN here,
+    # never a sentinel dB value; measure_link re-evaluates the shots that meet one.
+    snr_db = np.where(np.isfinite(snr_db), snr_db, np.nan)
     return r_nodes, a_nodes, snr_db, t_ov, split
 
 
@@ -594,6 +607,11 @@ def measure_link(config, scene, geom, seq) -> dict:
             t_shot = _overlap_at(config, bud, lag[ok])
             snr_ok = snr_ok * (t_shot / t_ov) ** 2
             t_ov = t_shot
+        unread = ~np.isfinite(snr_ok)
+        if np.any(unread):
+            snr_ok, t_ov, split = _unread_nodes(
+                node_cfg, config, bud, unread, snr_ok, t_ov, split, r_mean[ok], att, lag[ok],
+                no_overlap[ok], "doppler" in scene.effects)
         f_d = doppler_hz(config, scene, geom)[ok]
         resolved = np.abs(f_d) >= 1.0 / t_ov
         # Carrier fading about the nodes' mean phase power, or each shot's static phase (with the
@@ -620,7 +638,42 @@ def measure_link(config, scene, geom, seq) -> dict:
         range_meas[ok] = SPEED_OF_LIGHT_M_S * (fm / rate + ref[ok]) / (2.0 * n_grp)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band, outside,
-                   doppler_displaced(config, scene, geom, bud, np.where(ok, lag, np.nan)))
+                   doppler_displaced(config, scene, geom, bud, np.where(ok, lag, np.nan)),
+                   ambiguous=ok & range_ambiguous(bud, delay - ref))
+
+
+def _unread_nodes(node_cfg, config, bud, unread, snr_ok, t_ov, split, r_m, att_db, lag_s,
+                  no_overlap, doppler: bool):
+    """(SNR, T_ov, Doppler split factor) per shot, for shots whose table interpolation met a
+    node without a tone (its own lag has no chirp overlap: SNR 0, or no LO), instead of a
+    sentinel dB value: nodes at one lag with overlap (the median of these shots' own) and each
+    shot's own overlap scaling the tone, as with a range window (SNR with the square of T_ov).
+    Shots whose own chirps do not overlap have no tone: SNR 0 (written as the fill value,
+    flagged ``outside_range_gate``); so has every shot when no node has a tone (no LO)."""
+    snr_ok, t_ov = np.array(snr_ok, float), np.array(np.broadcast_to(t_ov, snr_ok.shape), float)
+    split = np.array(np.broadcast_to(split, snr_ok.shape), float)
+    t_shot = _overlap_at(config, bud, lag_s[unread])
+    snr_u = np.zeros(t_shot.shape)
+    split_u = np.ones(t_shot.shape)
+    tone = ~no_overlap[unread]
+    if np.any(tone):
+        r_u, a_u = r_m[unread], att_db[unread]
+        r_nodes, a_nodes, table, t_nodes, split_n = _link_table(
+            node_cfg, float(r_u.min()), float(r_u.max()), float(a_u.min()), float(a_u.max()),
+            doppler, float(np.median(lag_s[unread][tone])))
+        s = db_to_ratio(_interp_table(r_nodes, a_nodes, table, r_u[tone], a_u[tone]))
+        s = s * (t_shot[tone] / np.interp(r_u[tone], r_nodes, t_nodes)) ** 2
+        snr_u[tone] = np.where(np.isfinite(s), s, 0.0)
+        split_u[tone] = split_n if np.isfinite(split_n) else 1.0
+    snr_ok[unread], t_ov[unread], split[unread] = snr_u, t_shot, split_u
+    return snr_ok, t_ov, split
+
+
+def range_ambiguous(bud, delay_minus_ref_s) -> np.ndarray:
+    """Shots whose delay lies outside [tau_ref, tau_ref + T) (T the chirp period): the beat is
+    that of a delay whole periods away and the range read from it is off by a multiple of
+    c T / (2 n) (``tiers.common.range_ambiguous``; ``detected = 5``)."""
+    return np.asarray(_range_ambiguous(bud, delay_minus_ref_s), bool)
 
 
 def _overlap_at(config, bud, lag_s) -> np.ndarray:
@@ -644,16 +697,21 @@ def _static_phase(config, bud, delay_s, ref_delay_s) -> np.ndarray:
 
 
 def _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-            out_of_band, outside_window, displaced) -> dict:
+            out_of_band, outside_window, displaced, ambiguous=None) -> dict:
     """The survey's per-shot fields; ``detected`` says why a return does not count: 2 no
     surface; 3 outside the range gate (``survey.range_window_m``, or without one the ranges
-    whose beat lies in the processed band with the chirps overlapping); 4 Doppler-displaced;
-    0 below the detection threshold."""
+    whose beat lies in the processed band with the chirps overlapping); 5 range ambiguous (the
+    delay lies outside [tau_ref, tau_ref + T): the range read is off by a multiple of
+    c T / 2n), whatever its SNR; 4 Doppler-displaced; 0 below the detection threshold. An SNR
+    of zero (no tone) is written as NaN (the fill value), never as a sentinel dB value."""
     thr = float(db_to_ratio(config.survey.detection_threshold_db))
     hit = np.isfinite(geom.range_true_m)
     outside = outside_window | (ok & (no_overlap | out_of_band))
     seen = np.where(ok & (snr >= thr), 1, 0)
-    detected = np.where(~hit, 2, np.where(outside, 3, np.where(displaced & (seen == 1), 4, seen)))
+    detected = np.where(displaced & (seen == 1), 4, seen)
+    if ambiguous is not None:
+        detected = np.where(ok & ambiguous, 5, detected)
+    detected = np.where(~hit, 2, np.where(outside, 3, detected))
     det = detected == 1
     with np.errstate(divide="ignore"):
         snr_db = np.where(ok & (snr > 0), 10.0 * np.log10(np.where(snr > 0, snr, 1.0)), np.nan)
@@ -758,6 +816,7 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
     out_of_band = np.zeros((n, b), bool)
     n_grp = config.channel.group_index
     lags, window_ref, outside = gate_lags(config, bud, geom, returns[1])
+    gate_ref = window_ref
     if config.survey.range_window_m is None:
         window_ref = None
     for flat in np.flatnonzero(ok.ravel()):  # the rf tier is the reference: one shot at a time
@@ -772,9 +831,11 @@ def measure_rf(config, scene, geom, seq, progress=None) -> dict:
         out_of_band[i, j] = "beat_out_of_band" in out["flags"]
         if progress is not None:
             progress(1)
+    delay = 2.0 * n_grp * np.where(ok, returns[1], 1.0) / SPEED_OF_LIGHT_M_S
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
                    out_of_band, outside,
-                   doppler_displaced(config, scene, geom, bud, np.where(ok, lags, np.nan)))
+                   doppler_displaced(config, scene, geom, bud, np.where(ok, lags, np.nan)),
+                   ambiguous=ok & range_ambiguous(bud, delay - gate_ref))
 
 
 def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
@@ -812,6 +873,7 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
     f_d_all = doppler_hz(config, scene, geom)
     window_ref, outside = window_reference_delay_s(config, geom, r_mean)
     lags = np.full((n, b), np.nan)
+    ambiguous = np.zeros((n, b), bool)
     flat = np.flatnonzero(ok.ravel())
     order_by = r_mean if window_ref is None else window_ref
     flat = flat[np.argsort(order_by.ravel()[flat], kind="stable")]
@@ -847,10 +909,12 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         # Per-shot flags from each shot's own lag (the tier's flags describe the batch's centre).
         lag = np.mod(delay - bud_batch.ref_delay_s, bud.train.period_s)
         lags[ii, jj] = lag
+        ambiguous[ii, jj] = range_ambiguous(bud, delay - bud_batch.ref_delay_s)
         f_b = bud.rate_hz_per_s * lag
         no_overlap[ii, jj], out_of_band[ii, jj] = beat_flags(cfg, bud, lag, f_b)
         out_of_band[ii, jj] |= f_b > band_top
         if progress is not None:
             progress(idx.size)
     return _finish(config, geom, psig, snr, f_meas, range_meas, width, ok, no_overlap,
-                   out_of_band, outside, doppler_displaced(config, scene, geom, bud, lags))
+                   out_of_band, outside, doppler_displaced(config, scene, geom, bud, lags),
+                   ambiguous=ambiguous)

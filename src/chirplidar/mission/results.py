@@ -54,8 +54,10 @@ above the WGS-84 ellipsoid; ``h_li_true`` is the same surface without measuremen
 from __future__ import annotations
 
 import datetime as _dt
+import errno as _errno
 import os
 import re
+import shutil
 import sys
 import tempfile
 import threading
@@ -80,10 +82,12 @@ FEATURE_TYPE = "trajectory"
 # 3: the return lies outside the range gate (survey.range_window_m, or without one the ranges
 # whose beat lies in the processed band with the chirps overlapping): the instrument does not
 # look there, its beat would alias or leave the band; 4: a resolved Doppler shift displaces the
-# beat line by more than the range resolution and nothing compensates it.
-DETECTED_FLAG_VALUES = np.array([0, 1, 2, 3, 4], dtype=np.int8)
+# beat line by more than the range resolution and nothing compensates it; 5: the return's delay
+# lies outside [tau_ref, tau_ref + T) of the reference delay (T the chirp period), so the range
+# read from its beat is off by a multiple of c T / 2n (whatever its SNR).
+DETECTED_FLAG_VALUES = np.array([0, 1, 2, 3, 4, 5], dtype=np.int8)
 DETECTED_FLAG_MEANINGS = ("below_detection_threshold detected no_surface_in_beam "
-                          "outside_range_gate doppler_displaced")
+                          "outside_range_gate doppler_displaced range_ambiguous")
 
 
 @dataclass(frozen=True)
@@ -526,20 +530,66 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+#: Free space (bytes) below which a failed write counts as the file system being full: HDF5
+#: (through netCDF) reports ENOSPC only as "NetCDF: HDF error".
+NEARLY_FULL_BYTES = 1 << 20
+
+
+def _nearly_full(directory) -> bool:
+    """Whether the file system of ``directory`` has (almost) no space left for this process."""
+    try:
+        return shutil.disk_usage(directory).free < NEARLY_FULL_BYTES
+    except OSError:
+        return False
+
+
+def write_error(exc: BaseException, path, temp=None) -> OSError | None:
+    """``exc``, raised while writing ``path`` (through its temp file ``temp``), as an OSError
+    with the OS's error number and ``path`` as its file name -- disk full, quota, permission,
+    read-only or failing file system -- or None when it is not such an error.
+
+    netCDF and HDF5 turn a full disk into "NetCDF: HDF error" (a RuntimeError with no error
+    number), and netCDF a file it cannot create on a full disk into EACCES: a library error,
+    or a permission or I/O error in a folder this process may write in, while the file system
+    has less than :data:`NEARLY_FULL_BYTES` free counts as ENOSPC. Call it before the temp
+    file is removed (it holds the space)."""
+    directory = Path(path).parent if str(Path(path).parent) else Path(".")
+    full = OSError(_errno.ENOSPC, os.strerror(_errno.ENOSPC), str(path))
+    if isinstance(exc, OSError) and exc.errno is not None and exc.errno > 0:  # netCDF's < 0
+        if isinstance(exc, (FileExistsError, FileNotFoundError, IsADirectoryError,
+                            NotADirectoryError, InterruptedError)):
+            return None
+        if exc.errno in (_errno.EACCES, _errno.EPERM, _errno.EIO) and _nearly_full(directory) \
+                and os.access(directory, os.W_OK | os.X_OK):
+            return full
+        name = exc.filename
+        if name is None or (temp is not None and Path(name) == Path(temp)):
+            name = path
+        return OSError(exc.errno, os.strerror(exc.errno), str(name))
+    if isinstance(exc, (OSError, RuntimeError)) and _nearly_full(directory):
+        return full
+    return None
+
+
 def _atomic_write(path, write, *, overwrite: bool) -> Path:
     """Create ``path`` atomically: ``write(tmp)`` fills a temp file in the same directory, which
     is fsynced and renamed onto ``path`` (then the directory is fsynced).
 
     An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
     failure (or interrupt) no partial file is left at ``path`` and the temp file is removed; a
-    process killed mid-write leaves only the temp file ``.<name>.<random>.tmp``.
+    process killed mid-write leaves only the temp file ``.<name>.<random>.tmp``. A full disk,
+    a missing permission or a failing file system raise an OSError naming ``path`` with the
+    OS's error number (:func:`write_error`).
     """
     path = Path(path)
     tmp = _atomic_begin(path, overwrite=overwrite)
     try:
         write(tmp)
-    except BaseException:
+    except BaseException as exc:
+        err = write_error(exc, path, tmp)   # before the temp file goes (it holds the space)
         tmp.unlink(missing_ok=True)
+        if err is not None:
+            raise err from exc
         raise
     return _atomic_commit(tmp, path, overwrite=overwrite)
 
@@ -552,7 +602,13 @@ def _atomic_begin(path: Path, *, overwrite: bool) -> Path:
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise ValueError(f"path: directory {directory} does not exist")
-    fd, tmp_name = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp_name = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:   # e.g. a folder we may not write in, no inode left
+        err = write_error(exc, path)
+        if err is None:
+            raise
+        raise err from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -585,8 +641,11 @@ def _atomic_commit(tmp: Path, path: Path, *, overwrite: bool) -> Path:
                 os.replace(tmp, path)
             tmp.unlink(missing_ok=True)
         _fsync_dir(directory)
-    except BaseException:
+    except BaseException as exc:
+        err = write_error(exc, path, tmp)
         tmp.unlink(missing_ok=True)
+        if err is not None:
+            raise err from exc
         raise
     return path
 
@@ -902,8 +961,14 @@ class ChunkMerge:
             if why is not None:
                 raise ValueError(f"chunk {self.appended} ({self.writer.chunk_path(self.appended)})"
                                  f": {why}; not merged (rerun with --resume to recompute it)")
-            with NETCDF_LOCK:
-                self._append(self.appended)
+            try:
+                with NETCDF_LOCK:
+                    self._append(self.appended)
+            except Exception as exc:   # a full disk...: an OSError naming the file
+                err = write_error(exc, self.path, self._tmp)
+                if err is None:
+                    raise
+                raise err from exc
         return self.appended - done
 
     def finish(self) -> Path:
@@ -914,21 +979,40 @@ class ChunkMerge:
             missing = [i for i in range(self.appended, self.n_chunks)
                        if not self.writer.is_ready(i)]
             raise ValueError(f"chunks missing in {self.writer.path_dir}: {missing}")
-        with NETCDF_LOCK:
-            self._dst.close()
-        self._dst = None
+        try:
+            self._close_dst()
+        except Exception as exc:   # its last data flushed: a full disk...
+            err = write_error(exc, self.path, self._tmp)
+            if err is None:
+                raise
+            raise err from exc
         return _atomic_commit(self._tmp, self.path, overwrite=self.overwrite)
 
     def abort(self) -> None:
         """Close and remove the unfinished file (nothing is left at ``path``)."""
         if self._dst is not None:
+            # Emptied first: its space is freed, so that closing it (HDF5 writes its metadata)
+            # cannot fail on a full disk. (A failed close leaves HDF5 objects that crash the
+            # process when they are released later.)
             try:
-                with NETCDF_LOCK:
-                    self._dst.close()
-            except Exception:  # noqa: BLE001, S110 - removing it anyway
+                os.truncate(self._tmp, 0)
+            except OSError:
                 pass
-            self._dst = None
+        try:
+            self._close_dst()
+        except Exception:  # noqa: BLE001, S110 - removing it anyway
+            pass
+        self._dst = None
         self._tmp.unlink(missing_ok=True)
+
+    def _close_dst(self) -> None:
+        """Close the temp file (h5py), its variables released first. On a failure (a full disk
+        cannot take its last data) the file stays open for :meth:`abort`."""
+        self._targets = {}
+        if self._dst is not None:
+            with NETCDF_LOCK:
+                self._dst.close()
+            self._dst = None
 
     def _create(self, ref) -> None:
         """Definitions from chunk 0 (``ref``, open): dimensions with the full obs length,
@@ -1007,6 +1091,7 @@ class ChunkMerge:
                 if name in self.on_append_variables:   # only these: memory stays one variable
                     values[name] = _h5_read(source[0]) if data is None else data
         finally:
+            source = None   # released before its file (see _close_dst)
             src.close()
         if self.on_append is not None:
             self.on_append(values)

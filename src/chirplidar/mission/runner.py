@@ -50,14 +50,23 @@ absolute paths). On Linux the local cluster's workers are forked after the missi
 Without either option, chunks run serially in this process (no Dask cluster or client).
 
 Test hook: the environment variable ``CHIRPLIDAR_TEST_CHUNK_DELAY_S`` (seconds, default 0) makes
-a serial run sleep after each chunk file is written, so that tests can kill a run between
-chunks reliably. It changes no result.
+a serial run, or a Dask worker (set in the worker's environment), sleep after each chunk file is
+written, so that tests can kill a run, a worker or the scheduler between chunks reliably. It
+changes no result.
+
+Faults: a full disk, a missing permission or a failing file system while a chunk, the manifest
+or the results file is written, and a lost ``--scheduler``, stop the run with a
+:class:`RunError`: one line naming the file (or scheduler), how many chunks are finished and
+kept, and what to do (``--resume``). A chunk folder with no finished chunk is removed, so that
+it does not block the next run. Output folders that cannot be written are refused before any
+work.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import functools
 import hashlib
 import json
@@ -79,8 +88,9 @@ from shapely.geometry import Polygon, box
 from .. import __version__
 from ..config.loader import (ConfigError, config_flat, config_with, load_mission,
                              scene_overrides)
-from . import measure
+from . import measure, preflight
 from .results import (
+    DETECTED_FLAG_VALUES,
     NETCDF_LOCK,
     SCHEMA,
     ChunkWriter,
@@ -88,9 +98,13 @@ from .results import (
     read_netcdf,
     verify_results_file,
     write_bytes_atomic,
+    write_error,
 )
 from .survey import (check_crosses_scene, chunk_geometry, chunk_seeds, plan_survey,
                      survey_polygon_xy)
+
+#: The codes of the ``detected`` flag the summary counts (0 .. 5).
+N_DETECTED_CODES = DETECTED_FLAG_VALUES.size
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -106,6 +120,27 @@ CHUNK_DELAY_ENV = "CHIRPLIDAR_TEST_CHUNK_DELAY_S"
 _IDENTITY = ("format", "mission_file", "configuration_sha256", "seed", "tier", "scene_file",
              "scene_sha256", "input_files_sha256", "n_shots", "n_beams", "n_chunks",
              "chunk_shots", "software_version")
+
+
+class RunError(Exception):
+    """A run stopped by a fault outside the simulation -- a full disk, a missing permission, a
+    failing file system, the Dask scheduler lost -- as one line naming the file or address,
+    what is kept and what to do. The finished (sealed) chunks are kept for ``--resume``.
+    ``errno``: the OS error number, when there is one; ``exit_code``: the command line's
+    (:data:`EXIT_IO` for file-system faults, 1 otherwise)."""
+
+    def __init__(self, message: str, os_errno: int | None = None):
+        super().__init__(message)
+        self.errno = os_errno
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_IO if self.errno else 1
+
+
+#: Exit code of a run stopped by a file-system fault (disk full, permission, I/O error):
+#: sysexits.h's EX_IOERR.
+EXIT_IO = 74
 
 
 @dataclass(frozen=True)
@@ -203,6 +238,25 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
     return config, scene, plan
 
 
+def preflight_run(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None,
+                  cores=1, estimate=True):
+    """What a run checks before any work, and what ``chirplidar run --dry-run`` shows:
+    :func:`prepare`, the planner's warnings (issued as :class:`.preflight.PlannerWarning`) and,
+    if ``estimate``, the run's size (:func:`.preflight.run_estimate`, else None). Returns
+    (config, scene, plan, estimate)."""
+    config, scene, plan = prepare(mission_path, overrides=overrides, tier=tier, seed=seed,
+                                  cache_dir=cache_dir)
+    sv = config.survey
+    if plan.n_shots == 0:
+        raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
+                          f"{sv.prf_hz:g} Hz holds no shot")
+    for text in preflight.planner_warnings(config, scene, plan):
+        warnings.warn(text, preflight.PlannerWarning, stacklevel=2)
+    size = (preflight.run_estimate(config, scene, plan, cores=cores, measure_chunk=_measure)
+            if estimate else None)
+    return config, scene, plan, size
+
+
 def _measure(config, scene, geom, seq, progress=None) -> dict:
     """The measurement of one chunk through the run's tier (the one place that dispatches on
     ``survey.tier``). ``progress(n)`` is called with the number of finished shot-beams."""
@@ -274,9 +328,12 @@ def _per_shot(config, geom, meas) -> dict:
     return out
 
 
-def results_dataset(per_shot: dict, config, scene, mission_label: str, date_created: str):
+def results_dataset(per_shot: dict, config, scene, mission_label: str, date_created: str,
+                    planner_warnings=()):
     """The results dataset (schema, CF metadata, global attributes) of ``per_shot`` arrays of
-    shape (n_beams, n_shots): a chunk of a run, or a whole run assembled in memory."""
+    shape (n_beams, n_shots): a chunk of a run, or a whole run assembled in memory.
+    ``planner_warnings`` (:func:`.preflight.planner_warnings`) go in an attribute of that name,
+    one per line, when there are any."""
     sv = config.survey
     materials = {NO_SURFACE_CODE: "no_surface",
                  **{c: name for c, name in enumerate(scene.terrain.material_names)}}
@@ -296,6 +353,8 @@ def results_dataset(per_shot: dict, config, scene, mission_label: str, date_crea
     polygon = survey_polygon_xy(config, scene)
     if polygon is not None:
         ds.attrs["survey_polygon_wkt"] = Polygon(polygon).wkt
+    if planner_warnings:
+        ds.attrs["planner_warnings"] = "\n".join(planner_warnings)
     return ds
 
 
@@ -382,7 +441,8 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
         raise ConfigError(f"{job.mission_label}: [platform]: {exc}") from None
     meas = _measure(config, scene, geom, seq, progress)
     per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(config, geom, meas).items()}
-    ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created)
+    ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created,
+                         preflight.planner_warnings(config, scene, plan))
     # Compressed here, in the results file's HDF5 chunks: the merge copies them as they are.
     # The directory is not created here: a straggler of a run that is over cannot leave a
     # manifest-less chunk.
@@ -409,8 +469,19 @@ def _dask_run_chunk(job: ChunkJob, index: int) -> str:
     the synchronous scheduler: xarray then takes a lock local to this process. (Worker threads
     of one process write their chunk files one at a time: :data:`results.NETCDF_LOCK`.)
     """
+    # Dask computes a finished task again when the worker holding its result dies: a chunk
+    # already sealed for this run is not written again (the merge may be reading it, and its
+    # seal would be missing while it is rewritten).
+    writer = ChunkWriter(job.chunk_dir, create=False, run_id=_run_id(job))
+    with contextlib.suppress(ValueError):   # (a bad index: run_chunk says why)
+        if writer.is_ready(index) and writer.chunk_problem(index) is None:
+            return str(writer.chunk_path(index))
     with _synchronous_dask():
-        return str(run_chunk(job, index))
+        path = str(run_chunk(job, index))
+    delay = _chunk_delay_s()   # the test hook, as in a serial run
+    if delay:
+        time.sleep(delay)
+    return path
 
 
 _SYNC_LOCK = threading.Lock()
@@ -566,6 +637,7 @@ def summarise(ds, path, elapsed_s: float) -> dict:
         "returns": int(det.size), "detected": int(np.sum(det == 1)),
         "below_threshold": int(np.sum(det == 0)), "no_surface": int(np.sum(det == 2)),
         "outside_range_gate": int(np.sum(det == 3)), "doppler_displaced": int(np.sum(det == 4)),
+        "range_ambiguous": int(np.sum(det == 5)),
         "median_snr_db": float(np.median(snr)) if snr.size else float("nan"),
         "range_error_mean_m": float(np.mean(err)) if err.size else float("nan"),
         "range_error_std_m": float(np.std(err)) if err.size else float("nan"),
@@ -651,7 +723,7 @@ class _SummaryPass:
     def __init__(self, n_beams: int, budget_bytes: int):
         self.n_beams, self.budget_bytes = n_beams, budget_bytes
         self.n_obs = 0
-        self.counts = np.zeros(5, dtype=np.int64)
+        self.counts = np.zeros(N_DETECTED_CODES, dtype=np.int64)
         self.s1 = self.s2 = 0.0
         self.kept: list | None = []
 
@@ -666,7 +738,8 @@ class _SummaryPass:
     def add(self, det, snr, err) -> None:
         det, snr, err = self.detected_columns(det, snr, err)
         self.n_obs += det.size // max(self.n_beams, 1)
-        self.counts += np.bincount(det.astype(np.int64), minlength=5)[:5]
+        self.counts += np.bincount(det.astype(np.int64),
+                                   minlength=N_DETECTED_CODES)[:N_DETECTED_CODES]
         self.s1 += float(np.sum(err))
         self.s2 += float(np.sum(err * err))
         if self.kept is not None:
@@ -740,6 +813,7 @@ def _summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: i
         "shots": int(n_obs), "returns": int(n_obs * n_beams), "detected": n_det,
         "below_threshold": int(counts[0]), "no_surface": int(counts[2]),
         "outside_range_gate": int(counts[3]), "doppler_displaced": int(counts[4]),
+        "range_ambiguous": int(counts[5]),
         "median_snr_db": float(median), "range_error_mean_m": float(mean),
         "range_error_std_m": float(std), "range_error_rms_m": float(rms),
         "range_error_p95_abs_m": float(p95), "elapsed_s": elapsed_s,
@@ -755,7 +829,8 @@ def format_summary(s: dict) -> str:
         f"{s['below_threshold']} below threshold, {s['no_surface']} with no surface in the beam"
         + "".join(f", {s[k]} {text}" for k, text in (
             ("outside_range_gate", "outside the range gate (window or processed band)"),
-            ("doppler_displaced", "displaced by an uncompensated Doppler shift")) if s.get(k)),
+            ("doppler_displaced", "displaced by an uncompensated Doppler shift"),
+            ("range_ambiguous", "ambiguous by a chirp period (reference delay)")) if s.get(k)),
     ]
     if s["detected"]:
         lines += [
@@ -883,6 +958,8 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
     t0 = time.perf_counter()
     cluster = client = None
     futures = []
+    life = contextlib.ExitStack()   # settings held while our local cluster lives
+    lost = False                    # the scheduler (--scheduler) is gone
     try:
         if scheduler is not None:
             try:
@@ -906,13 +983,21 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
                 dask.config.get("distributed.worker.multiprocessing-method")
             # (Python >= 3.12 warns about fork in a process with threads: the cluster's own
             # event-loop thread is one; the workers start single-threaded from the forking one.)
-            with dask.config.set({"distributed.worker.multiprocessing-method": method,
-                                  **_LOCAL_CLUSTER_CONFIG}), \
-                    warnings.catch_warnings():
-                warnings.filterwarnings("ignore", message=r".*use of fork\(\) may lead to",
-                                        category=DeprecationWarning)
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
-                                       processes=True, dashboard_address=None)
+            # Held for the cluster's whole life, not only its start: a worker that dies is
+            # started again by its nanny, with the settings of that moment (spawned instead of
+            # forked, it would prepare the mission again, and its multiprocessing
+            # resource_tracker printed tracebacks as the cluster closed).
+            life.enter_context(dask.config.set({
+                "distributed.worker.multiprocessing-method": method, **_LOCAL_CLUSTER_CONFIG}))
+            life.enter_context(warnings.catch_warnings())
+            warnings.filterwarnings("ignore", message=r".*use of fork\(\) may lead to",
+                                    category=DeprecationWarning)
+            life.enter_context(_forks_wait_for_netcdf())
+            # (forked workers inherit it: their report of a failed chunk, with its traceback,
+            # is the error this process raises and reports itself, in one line)
+            life.enter_context(_log_filter("distributed.worker", _no_compute_failed))
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                   processes=True, dashboard_address=None)
             client = Client(cluster)
         timings["cluster_start_s"] = time.perf_counter() - t0
         token = uuid.uuid4().hex[:12]
@@ -923,21 +1008,29 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
                                 pure=False, retries=0, priority=-i)
             shots[fut.key] = plan.chunk_times(i).size * plan.beams.n_beams
             futures.append(fut)
-        for fut in as_completed(futures):
-            fut.result()   # re-raises a worker's error (ConfigError, ValueError, ...) as is
-            if bar:
-                bar.update(shots[fut.key])
-            if on_chunk is not None:
-                on_chunk()
+        try:
+            for fut in as_completed(futures):
+                fut.result()   # re-raises a worker's error (ConfigError, ValueError, ...) as is
+                if bar:
+                    bar.update(shots[fut.key])
+                if on_chunk is not None:
+                    on_chunk()
+        except Exception as exc:
+            if scheduler is not None and _scheduler_lost(client, exc):
+                raise _SchedulerLost(scheduler) from exc
+            raise
         if cluster is not None:
             # Every chunk is in: our workers' shutdown can only log noise now (a heartbeat
             # in flight as the cluster closes logs a traceback, dask/distributed#7105; seen
             # about once in 50 runs). Never worth failing a finished run for.
             with contextlib.suppress(Exception):
                 client.run(_quiet_worker_logs)
-    except BaseException:
-        if client is not None and futures:
+    except BaseException as exc:
+        lost = isinstance(exc, _SchedulerLost)
+        if client is not None and futures and not lost:
             try:
+                if cluster is not None:   # our workers: their tasks' cancellation is no news
+                    client.run(_quiet_worker_logs)
                 client.cancel(futures)
             except Exception:  # noqa: BLE001, S110 - closing anyway; the original error matters
                 pass
@@ -945,10 +1038,100 @@ def _run_dask(job: ChunkJob, todo: list[int], plan, workers, scheduler, bar,
     finally:
         t1 = time.perf_counter()
         if client is not None:
-            client.close()
+            # With the scheduler lost, the client is trying to reconnect: closing it stops that,
+            # and distributed logs the stop as an error with its traceback. The run reports the
+            # loss itself, in one line.
+            with _logs_muted("distributed.client") if lost else contextlib.nullcontext():
+                client.close()
         if cluster is not None:
             cluster.close()
+        life.close()
         timings["cluster_close_s"] = time.perf_counter() - t1
+
+
+_FORK_GUARD = {"clusters": 0, "held": 0}
+
+
+def _fork_before() -> None:
+    if _FORK_GUARD["clusters"]:
+        NETCDF_LOCK.acquire()
+        _FORK_GUARD["held"] += 1
+
+
+def _fork_after() -> None:
+    if _FORK_GUARD["held"]:
+        _FORK_GUARD["held"] -= 1
+        with contextlib.suppress(RuntimeError):
+            NETCDF_LOCK.release()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_fork_before, after_in_parent=_fork_after,
+                        after_in_child=_fork_after)
+
+
+@contextlib.contextmanager
+def _forks_wait_for_netcdf():
+    """While our local cluster lives, a worker process its nanny forks (to replace one that
+    died) waits for this process's netCDF/HDF5 call in flight (the results file is appended to
+    while the workers compute): forked in the middle of one, the worker would inherit
+    :data:`results.NETCDF_LOCK` held by a thread it does not have, and wait for ever to write
+    its chunk."""
+    _FORK_GUARD["clusters"] += 1
+    try:
+        yield
+    finally:
+        _FORK_GUARD["clusters"] -= 1
+
+
+@contextlib.contextmanager
+def _logs_muted(*names: str):
+    """The loggers ``names`` quiet below CRITICAL for the block."""
+    import logging
+
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+class _SchedulerLost(Exception):
+    """The client lost its connection to the run's ``--scheduler`` (:func:`_raise_run_fault`
+    turns it into a :class:`RunError` that says which chunks are kept)."""
+
+
+def _scheduler_lost(client, exc: BaseException) -> bool:
+    """Whether ``exc``, raised while a run's futures complete, means that the scheduler is gone:
+    the client no longer runs (it cancels every future, "scheduler-connection-lost", and tries
+    to reconnect) or its connection closed."""
+    from distributed.comm.core import CommClosedError
+
+    return (client.status != "running" or isinstance(exc, CommClosedError)
+            or "scheduler-connection-lost" in str(exc))
+
+
+def _no_compute_failed(record) -> bool:
+    """A logging filter: not a Dask worker's "Compute Failed" report."""
+    return not str(record.msg).startswith("Compute Failed")
+
+
+@contextlib.contextmanager
+def _log_filter(name: str, keep):
+    """The logger ``name`` passes only the records for which ``keep(record)`` holds, for the
+    block."""
+    import logging
+
+    logger = logging.getLogger(name)
+    logger.addFilter(keep)
+    try:
+        yield
+    finally:
+        logger.removeFilter(keep)
 
 
 def _quiet_worker_logs() -> None:
@@ -974,7 +1157,7 @@ def _check_parallel_args(workers, scheduler) -> None:
 
 def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
                 overwrite=False, progress=False, cache_dir=None, date_created=None,
-                workers=None, scheduler=None, resume=False) -> RunResult:
+                workers=None, scheduler=None, resume=False, yes=True) -> RunResult:
     """Run a survey mission and write its results; returns the path, summary and timings.
 
     ``out`` defaults to ``outputs/<mission name>.nc``. An existing ``out`` raises
@@ -985,6 +1168,13 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
     (discard it). ``workers`` > 1 runs the chunks on a local Dask cluster, ``scheduler`` on an
     existing one; the results are the same as a serial run's. ``date_created`` (ISO 8601)
     defaults to now, or ``$SOURCE_DATE_EPOCH``; a resumed run reuses the one of its manifest.
+    Before any work the planner's warnings are issued and, when ``progress`` or not ``yes``,
+    the run is sized (:func:`preflight_run`; the size printed when ``progress``); a run above
+    the limits of :mod:`.preflight` is refused unless ``yes`` (the command line asks for
+    ``--yes``).
+    An output or chunk folder this process cannot write in raises ConfigError before any work;
+    a full disk, a file-system error or a lost ``scheduler`` during the run raise
+    :class:`RunError` (one line; the finished chunks kept for ``resume``).
     """
     t0 = time.perf_counter()
     _check_parallel_args(workers, scheduler)
@@ -998,18 +1188,31 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
     if out == default_output(mission_path):
         out.parent.mkdir(parents=True, exist_ok=True)   # outputs/: made for the default
     if out.parent.is_dir():
+        _check_writable(out.parent, f"--out {out}")
         with _output_lock(out):
             return _run_locked(mission_path, out, overrides=overrides, tier=tier, seed=seed,
                                overwrite=overwrite, progress=progress, cache_dir=cache_dir,
                                date_created=date_created, workers=workers,
-                               scheduler=scheduler, resume=resume, t0=t0)
+                               scheduler=scheduler, resume=resume, yes=yes, t0=t0)
     return _run_locked(mission_path, out, overrides=overrides, tier=tier, seed=seed,
                        overwrite=overwrite, progress=progress, cache_dir=cache_dir,
                        date_created=date_created, workers=workers, scheduler=scheduler,
-                       resume=resume, t0=t0)
+                       resume=resume, yes=yes, t0=t0)
 
 
 LOCK_SUFFIX = ".lock"
+
+
+def _check_writable(directory: Path, what: str) -> None:
+    """ConfigError, before any work, unless this process may create files in ``directory``."""
+    if os.access(directory, os.W_OK | os.X_OK):
+        return
+    try:
+        read_only = bool(os.statvfs(directory).f_flag & os.ST_RDONLY)
+    except (OSError, AttributeError):
+        read_only = False
+    reason = os.strerror(errno.EROFS if read_only else errno.EACCES).lower()
+    raise ConfigError(f"{what}: cannot write in {directory}: {reason} (nothing was run)")
 
 
 def _process_alive(pid: int) -> bool:
@@ -1052,8 +1255,17 @@ def _output_lock(out: Path):
             warnings.warn(f"{lock}: taking over the lock of pid {pid}, which no longer runs",
                           stacklevel=3)
             lock.unlink(missing_ok=True)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(me, f)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(me, f)
+    except BaseException as exc:   # e.g. a full disk: no lock left behind to block the next run
+        lock.unlink(missing_ok=True)
+        err = write_error(exc, lock)
+        if err is not None and _is_os_fault(err):
+            raise RunError(f"{_os_fault_text(err)}; nothing was run: "
+                           f"{_FIXES.get(err.errno, 'fix that')}, then run again",
+                           err.errno) from exc
+        raise
     try:
         yield lock
     finally:
@@ -1061,19 +1273,25 @@ def _output_lock(out: Path):
 
 
 def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, progress,
-                cache_dir, date_created, workers, scheduler, resume, t0) -> RunResult:
+                cache_dir, date_created, workers, scheduler, resume, yes, t0) -> RunResult:
     """:func:`run_mission` once the output's lock is held."""
     chunk_dir = chunk_dir_for(out)
     if chunk_dir.exists() and not (resume or overwrite):
         raise FileExistsError(
             f"{chunk_dir} holds the chunks of an unfinished run: pass --resume to finish it or "
             "--overwrite to discard it (nothing was run)")
-    config, scene, plan = prepare(mission_path, overrides=overrides, tier=tier, seed=seed,
-                                  cache_dir=cache_dir)
-    sv = config.survey
-    if plan.n_shots == 0:
-        raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
-                          f"{sv.prf_hz:g} Hz holds no shot")
+    if chunk_dir.is_dir():
+        _check_writable(chunk_dir, "--resume" if resume else "--overwrite")
+    config, scene, plan, estimate = preflight_run(
+        mission_path, overrides=overrides, tier=tier, seed=seed, cache_dir=cache_dir,
+        cores=workers or 1, estimate=progress or not yes)   # its pilot costs a second
+    if progress:
+        print(f"chirplidar run: {preflight.format_estimate(estimate)}", file=sys.stderr)
+    if estimate is not None and estimate.large and not yes:
+        raise ConfigError(f"{mission_path}: a large run ({preflight.format_estimate(estimate)}; "
+                          f"the limits are {preflight.LARGE_RUN_HOURS:g} h and "
+                          f"{preflight.LARGE_RUN_GB:g} GB): pass --yes to start it, or "
+                          "--dry-run to see its plan (nothing was run)")
     if not out.parent.is_dir():   # (the default's outputs/ is made before the lock)
         raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
     timings = {"prepare_s": time.perf_counter() - t0}
@@ -1105,8 +1323,17 @@ def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, pr
     if old is None:
         if date_created is None:
             date_created = _default_date_created()
-        chunk_dir.mkdir(exist_ok=True)
-        _write_manifest(chunk_dir, {**manifest, "date_created": date_created})
+        try:
+            chunk_dir.mkdir(exist_ok=True)
+            _write_manifest(chunk_dir, {**manifest, "date_created": date_created})
+        except BaseException as exc:   # e.g. a full disk: no chunk folder left to block a rerun
+            if chunk_dir.is_dir() and not ChunkWriter(chunk_dir).completed_chunks():
+                shutil.rmtree(chunk_dir, ignore_errors=True)
+            if _is_os_fault(exc):
+                raise RunError(f"{_os_fault_text(exc)}; no chunk was computed: "
+                               f"{_FIXES.get(exc.errno, 'fix that')}, then run again",
+                               exc.errno) from exc
+            raise
 
     job = ChunkJob(
         mission_path=str(Path(mission_path).resolve()), mission_label=str(mission_path),
@@ -1123,6 +1350,54 @@ def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, pr
                         timings=timings, t0=t0)
     finally:
         _PREPARED.pop(_job_key(job), None)   # this process needs it no more (workers keep theirs)
+
+
+#: What to do about a file-system fault, by its error number.
+_FIXES = {errno.ENOSPC: "free some space", errno.EDQUOT: "free some space (disk quota)",
+          errno.EACCES: "fix the permissions", errno.EPERM: "fix the permissions",
+          errno.EROFS: "make the file system writable"}
+
+
+def _os_fault_text(exc: OSError) -> str:
+    """``cannot write PATH: no space left on device`` (one line) of an OSError of a write."""
+    where = exc.filename if exc.filename is not None else "a file"
+    reason = os.strerror(exc.errno).lower()   # (h5py puts its error stack in exc.strerror)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM):
+        return f"cannot write {where}: {reason}"
+    return f"{where}: {reason}"
+
+
+def _is_os_fault(exc: BaseException) -> bool:
+    """An OSError of the file system (with an error number), not of the run's own logic."""
+    return (isinstance(exc, OSError) and not isinstance(exc, FileExistsError)
+            and isinstance(exc.errno, int) and exc.errno > 0)
+
+
+def _raise_run_fault(exc: BaseException, writer: ChunkWriter, n_chunks: int,
+                     scheduler) -> None:
+    """After ``exc`` stopped a run: a chunk folder with no sealed chunk is removed (nothing to
+    resume, and it would block the next run); a fault outside the simulation (file system,
+    lost scheduler) is raised as a :class:`RunError` saying what is kept and what to do.
+    Returns (for the caller to re-raise ``exc``) otherwise."""
+    chunk_dir = writer.path_dir
+    kept = sum(1 for i in range(n_chunks) if writer.is_ready(i)) if chunk_dir.is_dir() else 0
+    if not kept:   # (unsealed chunk files would be computed again anyway)
+        shutil.rmtree(chunk_dir, ignore_errors=True)
+    if isinstance(exc, _SchedulerLost):
+        if kept:
+            raise RunError(f"lost the Dask scheduler at {scheduler} after {kept} of {n_chunks} "
+                           f"chunks; the finished chunks are kept in {chunk_dir}: run again "
+                           "with --resume") from exc
+        raise RunError(f"lost the Dask scheduler at {scheduler} before any of the {n_chunks} "
+                       "chunks was finished: run again when it is back") from exc
+    if _is_os_fault(exc):
+        fix = _FIXES.get(exc.errno, "fix that")
+        if kept:
+            raise RunError(f"{_os_fault_text(exc)}; {kept} of {n_chunks} chunks done and "
+                           f"kept in {chunk_dir}: {fix}, then run again with --resume",
+                           exc.errno) from exc
+        raise RunError(f"{_os_fault_text(exc)}; no chunk was finished, nothing is kept: {fix}, "
+                       "then run again", exc.errno) from exc
 
 
 def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwrite: bool,
@@ -1153,10 +1428,16 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     t1 = time.perf_counter()
     one_chunk = plan.chunk_shots * plan.beams.n_beams * 8 * len(SCHEMA)   # bytes, float64
     summary_pass = _SummaryPass(plan.beams.n_beams, budget_bytes=one_chunk)
-    merge = writer.start_merge(
-        out, [plan.chunk_times(i).size for i in range(plan.n_chunks)], overwrite=overwrite,
-        obs_chunk=plan.chunk_shots, on_append_variables=SUMMARY_VARIABLES,
-        on_append=lambda values: summary_pass.add(*(values[k] for k in SUMMARY_VARIABLES)))
+    try:
+        merge = writer.start_merge(
+            out, [plan.chunk_times(i).size for i in range(plan.n_chunks)], overwrite=overwrite,
+            obs_chunk=plan.chunk_shots, on_append_variables=SUMMARY_VARIABLES,
+            on_append=lambda values: summary_pass.add(*(values[k] for k in SUMMARY_VARIABLES)))
+    except BaseException as exc:
+        if bar:
+            bar.close()
+        _raise_run_fault(exc, writer, plan.n_chunks, scheduler)
+        raise
     appends_s = [0.0]
 
     def append_ready():
@@ -1175,10 +1456,9 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
             # of this process, at the end.
             _run_dask(job, todo, plan, workers, scheduler, bar, timings,
                       append_ready if scheduler is None else None)
-    except BaseException:
+    except BaseException as exc:
         merge.abort()
-        if not writer.completed_chunks():   # nothing to resume: do not block the next run
-            shutil.rmtree(chunk_dir, ignore_errors=True)
+        _raise_run_fault(exc, writer, plan.n_chunks, scheduler)
         raise
     finally:
         if bar:
@@ -1186,8 +1466,12 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     timings["chunks_s"] = time.perf_counter() - t1
     timings["chunk_appends_s"] = appends_s[0]
     t2 = time.perf_counter()
-    with merge:
-        path = merge.finish()
+    try:
+        with merge:
+            path = merge.finish()
+    except BaseException as exc:
+        _raise_run_fault(exc, writer, plan.n_chunks, scheduler)
+        raise
     # Every variable read back before the chunks go: they are the only other copy.
     verify_results_file(path, plan.n_shots, plan.beams.n_beams, block_obs=4 * plan.chunk_shots)
     files = [writer.chunk_path(i) for i in range(plan.n_chunks)]

@@ -52,7 +52,6 @@ import numpy as np
 import trimesh
 from pydantic import (
     BaseModel,
-    ConfigDict,
     Field,
     ValidationError,
     field_validator,
@@ -60,8 +59,8 @@ from pydantic import (
 )
 
 from ..atmosphere import turbulence as _turbulence
-from ..config.loader import ConfigError, parse_set
-from ..config.models import EFFECT_NAMES
+from ..config.loader import MAX_LISTED_PROBLEMS, ConfigError, parse_set
+from ..config.models import EFFECT_NAMES, StrictModel
 from ..geometry import terrain as _terrain
 from ..geometry.frames import (
     SUPPORTED_EPSG,
@@ -129,11 +128,17 @@ class _FieldError(ValueError):
         self.text = text
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_Model = StrictModel
 
 
 Pair = tuple[float, float]
+
+#: Each pond or outcrop is one pass over the whole grid: the count is bounded so a typo
+#: (n_ponds = 1e8) is an error, not hours of generation.
+MAX_FEATURES = 1000
+#: Grid nodes x features above which generation would take minutes (2e9: ~1000 features on
+#: the 1e6-node demo grid).
+MAX_FEATURE_WORK = 2e9
 
 
 def _check_material(name: str) -> str:
@@ -175,12 +180,12 @@ class SyntheticTerrain(_Model):
         None, description="wind direction the sastrugi are aligned with, clockwise from grid "
         "north (+y)")
     pond_band_from_margin_m: Pair | None = None
-    n_ponds: int | None = Field(None, ge=0)
+    n_ponds: int | None = Field(None, ge=0, le=MAX_FEATURES)
     pond_radius_m: Pair | None = None
     pond_depth_m: float | None = Field(None, ge=0)
     pond_max_basin_m: float | None = Field(None, ge=0)
     outcrop_band_from_margin_m: Pair | None = None
-    n_outcrops: int | None = Field(None, ge=0)
+    n_outcrops: int | None = Field(None, ge=0, le=MAX_FEATURES)
     outcrop_height_m: Pair | None = None
     outcrop_radius_m: Pair | None = None
 
@@ -360,6 +365,16 @@ class TerrainConfig(_Model):
             if nodes > 5e7:
                 raise _FieldError("resolution_m", f"{self.resolution_m:g} m gives ~{nodes:.3g} "
                                   "grid nodes (> 5e7); coarsen it")
+            if src == "synthetic":
+                syn = self.synthetic
+                n_features = (syn.n_ponds or 0) * ("ponds" in syn.features) + \
+                    (syn.n_outcrops or 0) * ("outcrops" in syn.features)
+                if n_features * nodes > MAX_FEATURE_WORK:
+                    raise _FieldError("synthetic", f"{n_features} ponds and outcrops on "
+                                      f"~{nodes:.3g} grid nodes would take minutes to generate "
+                                      f"(each is a pass over the grid; keep features x nodes "
+                                      f"<= {MAX_FEATURE_WORK:.0e}): fewer features or a coarser "
+                                      "resolution_m")
         else:
             for k in grid:
                 if getattr(self, k) is not None:
@@ -539,11 +554,12 @@ def _unknown_key(key: str) -> str:
     if not close:
         leaf = key.rsplit(".", 1)[-1].lower()
         close = [k for k in SCENE_KEYS if k.rsplit(".", 1)[-1].lower() == leaf][:5]
-    return "unknown key" + (f"; did you mean: {', '.join(close)}" if close else "")
+    return "unknown key" + (f" (did you mean: {', '.join(close)}?)" if close else "")
 
 
 def _format_errors(err: ValidationError, source: str) -> str:
-    lines = []
+    """One line: the source, then each problem (missing keys together), ``; ``-separated."""
+    missing, problems = [], []
     for e in err.errors():
         loc = [str(p) for p in e["loc"]]
         cause = (e.get("ctx") or {}).get("error")
@@ -559,11 +575,16 @@ def _format_errors(err: ValidationError, source: str) -> str:
                 msg = f"{msg} (got {got!r})"
         key = ".".join(loc) or "(top level)"
         if e["type"] == "missing":
-            msg = "missing key"
-        elif e["type"] == "extra_forbidden":
+            missing.append(key)
+            continue
+        if e["type"] == "extra_forbidden":
             msg = _unknown_key(key)
-        lines.append(f"{source}: {key}: {msg}")
-    return "\n".join(lines)
+        problems.append(f"{key}: {msg}")
+    if missing:
+        problems.insert(0, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    more = len(problems) - MAX_LISTED_PROBLEMS
+    listed = problems[:MAX_LISTED_PROBLEMS] + ([f"and {more} more"] if more > 0 else [])
+    return f"{source}: {'; '.join(listed)}"
 
 
 def _error(source: str, key: str, text: str) -> ConfigError:

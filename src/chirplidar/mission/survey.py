@@ -25,9 +25,10 @@ import numpy as np
 
 from ..config.loader import ConfigError
 from ..geometry import frames
-from ..geometry.platform import (AircraftLines, Attitude, BeamPattern, KeplerOrbit, TleOrbit,
-                                 UavPath, conical_scan, lawnmower, lawnmower_lines, nadir_beam,
-                                 paired_beams_across_track, shot_geometry, shot_times)
+from ..geometry.platform import (AircraftLines, Attitude, BeamPattern, KeplerOrbit,
+                                 OffTerrainError, TleOrbit, UavPath, conical_scan, lawnmower,
+                                 lawnmower_lines, nadir_beam, paired_beams_across_track,
+                                 shot_geometry, shot_times)
 from ..geometry.raycast import cast_rays, footprint_subrays
 from ..optics import beam_radius_m
 
@@ -210,6 +211,12 @@ def _path(config, scene, source: str):
                                  f"lines: an even number is needed, got {len(pts)}")
             lines = [(pts[i], pts[i + 1]) for i in range(0, len(pts), 2)]
         return AircraftLines(lines, sec.altitude_m, sec.speed_mps, sec.turn_radius_m)
+    except OffTerrainError as exc:
+        x0, x1, y0, y1 = scene.bounds_xy
+        raise ConfigError(f"{source}: {key}: {exc} (the scene {Path(scene.path).name} covers "
+                          f"x {x0:.0f}..{x1:.0f} m, y {y0:.0f}..{y1:.0f} m"
+                          f"{'; it has no-data holes' if getattr(scene.terrain, 'holes', 0) else ''}"
+                          ")") from None
     except ValueError as exc:
         raise ConfigError(f"{source}: {key}: {exc}") from None
 
@@ -235,6 +242,11 @@ def track_index(path, t_s) -> np.ndarray:
     if hasattr(path, "track_index"):
         return np.asarray(path.track_index(t_s), dtype=np.int64)
     return np.zeros(np.shape(t_s), dtype=np.int64)
+
+
+#: The shot times of a run are held in memory (8 bytes each): 2e8 shots is 1.6 GB, six times a
+#: one-hour UAV flight at 9.4 kHz.
+MAX_SURVEY_SHOTS = 2e8
 
 
 def plan_survey(config, scene, source: str) -> SurveyPlan:
@@ -276,6 +288,12 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
         if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
             raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the "
                               f"path ({path.duration_s:.1f} s)")
+        n_shots = (stop - sv.start_s) * sv.prf_hz
+        if n_shots > MAX_SURVEY_SHOTS:
+            raise ConfigError(f"{source}: survey.start_s..stop_s ({sv.start_s:g}..{stop:g} s) "
+                              f"at survey.prf_hz = {sv.prf_hz:g} Hz is {n_shots:.3g} shots, more "
+                              f"than a run holds ({MAX_SURVEY_SHOTS:.0e}): split it into "
+                              "several runs")
         t = shot_times(sv.start_s, stop, sv.prf_hz)
     endurance = getattr(_flight_section(config), "endurance_s", None)
     if endurance is not None and path.duration_s > endurance:
@@ -463,8 +481,20 @@ def check_crosses_scene(plan: SurveyPlan, scene, config, source: str, n_probe: i
     if not np.any(np.isfinite(g.range_true_m)):
         x0, x1, y0, y1 = scene.bounds_xy
         px, py = g.platform_xyh[:, 0], g.platform_xyh[:, 1]
+        ground = scene.ground_height_m(px, py)
+        under = np.isfinite(ground)
+        over_scene = bool(np.any((px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)))
+        if under.any() and np.all(g.platform_xyh[under, 2] <= ground[under]):
+            raise ConfigError(
+                f"{source}: [platform] the path flies below the terrain: the platform at "
+                f"{g.platform_xyh[under, 2].min():.0f}..{g.platform_xyh[under, 2].max():.0f} m "
+                f"over ground at {ground[under].min():.0f}..{ground[under].max():.0f} m "
+                "(ellipsoidal heights); raise its altitude_m or fly altitude_mode = "
+                "'above_ground'")
         raise ConfigError(
-            f"{source}: [platform] the path never crosses the scene {Path(scene.path).name}: "
-            f"no beam of {idx.size} shots spread over survey.start_s..stop_s hits the terrain "
-            f"(platform x {px.min():.0f}..{px.max():.0f} m, y {py.min():.0f}..{py.max():.0f} m; "
+            f"{source}: [platform] " + (
+                "the beams point off the scene" if over_scene else "the path never crosses the "
+                "scene") + f" {Path(scene.path).name}: no beam of {idx.size} shots spread "
+            f"over the survey span hits the terrain (beams up to "
+            f"{np.degrees(np.nanmax(g.off_nadir_rad)):.3g} deg off nadir; platform x {px.min():.0f}..{px.max():.0f} m, y {py.min():.0f}..{py.max():.0f} m; "
             f"scene x {x0:.0f}..{x1:.0f} m, y {y0:.0f}..{y1:.0f} m)")

@@ -4,7 +4,8 @@ Conventions (one-sided, what a spectrum analyzer displays):
 
 * PSD  P_k = 2 |X_k|^2 / (N Fs R)  [W/Hz]; white noise of variance s^2 reads 2 s^2 / (Fs R).
 * A tone A cos(2 pi f t) reads A^2 / (2 R) as ``P_peak * df`` with df = Fs / N (eq. 2.6.6).
-* Noise level = mean PSD over a flat span beside the peak, times the RBW (eq. 2.6.11).
+* Noise level = mean PSD over a flat span beside the peak, times the RBW (eq. 2.6.11); the span
+  moves out past a strong tone's own skirt (:func:`_noise_floor`).
 * SNR = tone power / (noise PSD * RBW) (eq. 2.6.12).
 
 The thesis's own normalisation (P_f = V_f^2 / (R 2 BW), eqs. 2.6.3-2.6.4) is two-sided: both its
@@ -29,6 +30,16 @@ _KERNEL_HALF_WIDTH = 48
 _FINE_STEP = 1.0 / 16.0      # fine-grid step, in native bins (then parabolic refinement)
 _THREEDB_SPAN = 4.0          # +- native bins searched for the 3 dB points on the fine grid
 _CROSSING_WINDOW = 64        # +- bins of the spectrum searched first for the 3 dB points
+# Noise windows (see _noise_floor): how many, stepped outward from the peak, are tried; how many
+# beyond a window make its flat reference; the one-sided test level in standard errors (a flat
+# strip fails it ~1 % of the time, periodogram bins being skewed, and the next window is read
+# instead: no bias, the test does not see the window it picks; a skirt that passes it is
+# steeper still in the window read); the fewest bins a window or test region needs.
+_NOISE_WINDOWS = 16
+_NOISE_REF_WINDOWS = 4
+_NOISE_FLAT_Z = 3.0
+_MIN_NOISE_BINS = 8
+_REGION_BLOCK = 1 << 18       # bins gathered per pass of _region_stats (2 MB per array)
 
 
 @dataclass(frozen=True)
@@ -147,6 +158,125 @@ def _range_sums(y: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarra
     np.cumsum(y, axis=1, dtype=float, out=cs[:, 1:])
     rows = np.arange(batch)
     return cs[rows, stop] - cs[rows, start]
+
+
+def _noise_floor(psd: np.ndarray, f: np.ndarray, f_pk: np.ndarray, first: int, last: int,
+                 span_hz: float, guard_hz: float, zero_pad: int):
+    """Per row: the mean PSD over the nearest noise window that the tone's own skirt leaves flat,
+    and its bin count (0 when no window holds enough bins: the caller falls back).
+
+    Window j holds the bins guard + j w < |f - f_pk| <= guard + (j + 1) w (w = span / 2 - guard,
+    both sides, within first..last); window 0 is the span beside the peak. A beat tone is not a
+    line: it lasts as long as the two pulses overlap, and its rise and fall (the chirp's
+    raised-cosine taper, a gate, a laser linewidth) spread it into a skirt that falls with
+    |f - f_pk| but stays above the noise farther out the stronger the tone (on the Ch. 5 bench the
+    taper's |f|^-6 skirt reaches past 1 MHz above ~60 dB SNR). The link tier's noise is the
+    receiver's alone, and the thesis reads the noise over a flat region (Sec. 2.6), so window j is
+    read only when the strip just inside it (window j - 1; for window 0, the outer half of the
+    guard) exceeds windows j+2 .. j+1+_NOISE_REF_WINDOWS by no more than _NOISE_FLAT_Z standard
+    errors: the skirt falls outward, so window j holds less of it than that strip. The tests
+    never look at the window they choose, so choosing does not bias the reading; a flat spectrum
+    (a weak tone) reads window 0, as a fixed span would. A skirt still above the noise in the
+    last window (a rectangular pulse's |f|^-2 sidelobes or a wide linewidth's pedestal, strong)
+    is read there: still high, but far less than beside the peak.
+    """
+    batch = psd.shape[0]
+    width = 0.5 * span_hz - guard_hz
+    if width <= 0:
+        return np.zeros(batch), np.zeros(batch, int)
+    # Region edges (distances from f_pk): the guard's outer strip, then the windows.
+    edges = np.concatenate([[guard_hz - min(width, 0.5 * guard_hz)],
+                            guard_hz + width * np.arange(_NOISE_WINDOWS + 1)])
+    # First the regions test 0 needs (strip, window 0, windows 2..1+R): most rows stop there.
+    near = 3 + _NOISE_REF_WINDOWS
+    noise, n_win = np.zeros(batch), np.zeros(batch, int)
+    rows = np.arange(batch)
+    for reach in (near, _NOISE_WINDOWS + 1):
+        stats = _region_stats(psd[rows], f, f_pk[rows], first, last, edges[:reach + 1], zero_pad)
+        flat, usable = _flat_windows(*stats, zero_pad)
+        if reach == near:
+            done = flat[:, 0]
+            pick = np.zeros(rows.size, int)
+        else:
+            done = np.ones(rows.size, bool)
+            # No flat window within reach: the farthest usable one.
+            far = usable.shape[1] - 1 - np.argmax(usable[:, ::-1], axis=1)
+            pick = np.where(flat.any(axis=1), np.argmax(flat, axis=1), far)
+        r = np.arange(rows.size)
+        cnt, s1 = stats[0][r, pick + 1], stats[1][r, pick + 1]
+        ok = done & usable[r, pick]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            noise[rows[done]] = np.where(ok, s1 / cnt, 0.0)[done]
+        n_win[rows[done]] = np.where(ok, cnt, 0).astype(int)[done]
+        rows = rows[~done]
+        if not rows.size:
+            break
+    return noise, n_win
+
+
+def _region_stats(psd, f, f_pk, first, last, edges, zero_pad: int):
+    """Per region edges[m] < |f - f_pk| <= edges[m + 1] (both sides, within the bins first..last):
+    bin count, sum and sum of squares of the PSD, and the sums of products of bins one and two
+    native bins (zero_pad, 2 zero_pad bins) apart, each pair counted in the region of its bin
+    nearer the band's start: arrays (batch, edges.size - 1)."""
+    batch, n_bins = psd.shape
+    # Bins f_pk - e <= f and f <= f_pk + e, as the fixed span and guard always counted them.
+    lo = np.clip(np.searchsorted(f, f_pk[:, None] - edges), first, last + 1)
+    hi = np.clip(np.searchsorted(f, f_pk[:, None] + edges, side="right"), first, last + 1)
+    cnt = (lo[:, :-1] - lo[:, 1:]) + (hi[:, 1:] - hi[:, :-1])
+    sums = np.zeros((4, batch, edges.size - 1))
+    lags = (zero_pad, 2 * zero_pad)
+    # Each side separately, from its outermost (left) or innermost (right) edge: the prefix sums
+    # never carry the tone's peak, whose rounding would swamp the noise sums, and are read only
+    # up to the side's own last bin (nothing to mask; the lag products' last pairs reach up to
+    # 2 zero_pad bins beyond it, which only blurs the region edges).
+    for start, pos, sign in ((lo[:, -1], lo, -1.0), (hi[:, 0], hi, 1.0)):
+        pos = pos - start[:, None]
+        width = max(int(np.max(pos, initial=0)), 1)
+        step = max(1, _REGION_BLOCK // width)      # rows per pass: temporaries stay small
+        cols_all = start[:, None] + np.arange(width + lags[-1])
+        for r0 in range(0, batch, step):
+            r = slice(r0, r0 + step)
+            vals = np.take_along_axis(psd[r], np.minimum(cols_all[r], n_bins - 1), axis=1)
+            terms = [vals[:, :width], np.multiply(vals[:, :width], vals[:, :width], dtype=float)]
+            terms += [np.multiply(vals[:, :width], vals[:, lag:lag + width], dtype=float)
+                      for lag in lags]
+            for y, out in zip(terms, sums):
+                cs = np.zeros((y.shape[0], width + 1))
+                np.cumsum(y, axis=1, dtype=float, out=cs[:, 1:])
+                c = np.take_along_axis(cs, pos[r], axis=1)
+                out[r] += sign * (c[:, 1:] - c[:, :-1])
+    return (cnt, *sums)
+
+
+def _flat_windows(cnt, s1, s2, p1, p2, zero_pad: int):
+    """(flat, usable), (batch, windows): the test of :func:`_noise_floor` for each window j from
+    the region statistics of :func:`_region_stats` (region 0: the guard's outer strip, region
+    j + 1: window j). Window j's strip is region j; its reference, windows j+2 ..
+    j+1+_NOISE_REF_WINDOWS pooled (not j+1: the window read when test j fails must not have made
+    it fail)."""
+    nj = cnt.shape[1] - 1
+    c1, c2, q1, q2, cc = (np.concatenate([np.zeros((cnt.shape[0], 1)), np.cumsum(x, axis=1)],
+                                         axis=1) for x in (s1, s2, p1, p2, cnt))
+    j = np.arange(nj)
+    bottom, top = np.minimum(j + 3, nj + 1), np.minimum(j + 3 + _NOISE_REF_WINDOWS, nj + 1)
+    r_cnt, r_s1, r_s2, r_p1, r_p2 = (x[:, top] - x[:, bottom] for x in (cc, c1, c2, q1, q2))
+    t_cnt, t_s1 = cnt[:, :nj], s1[:, :nj]
+    usable = cnt[:, 1:] >= _MIN_NOISE_BINS
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_mean = r_s1 / r_cnt
+        m2 = r_mean**2
+        # Relative variance of one bin (1 for a periodogram, 1/K for K power-averaged ones).
+        var = np.clip(r_s2 / r_cnt - m2, 0.0, m2)
+        # Neighbouring bins are correlated: zero_pad at a time by the padding, and over a few
+        # native bins when the noise is gated (the LO pulse, the record gate): the mean of n
+        # bins has the variance of n / (zero_pad (1 + 2 rho_1 + 2 rho_2)) independent ones.
+        rho = sum(np.clip((p / r_cnt - m2) / var, 0.0, 1.0) for p in (r_p1, r_p2))
+        se = np.sqrt(var / m2 * zero_pad * (1.0 + 2.0 * rho) * (1.0 / t_cnt + 1.0 / r_cnt))
+        # Too few bins to test (band edges, a narrow band): no evidence of a skirt.
+        untested = (t_cnt < _MIN_NOISE_BINS) | (r_cnt < _MIN_NOISE_BINS)
+        flat = usable & (untested | (t_s1 / t_cnt <= r_mean * (1.0 + _NOISE_FLAT_Z * se)))
+    return flat, usable
 
 
 def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
@@ -269,20 +399,13 @@ def analyze_spectrum(psd: np.ndarray, fs_hz: float, n: int, *, zero_pad: int, rb
     hi = s_hi if hi is None else np.where(np.isnan(hi), s_hi, hi)
     lo = np.where(np.isnan(lo), f[first], lo)
     hi = np.where(np.isnan(hi), f[-1], hi)
-    # Noise: mean PSD over the span beside the peak (lo <= f < hi), guard bins excluded, within
-    # the search band (the bins first..last).
-    a = np.searchsorted(f, f_pk - 0.5 * noise_span_hz)
-    b = np.searchsorted(f, f_pk + 0.5 * noise_span_hz + 1e-9)
-    g0 = np.searchsorted(f, f_pk - noise_guard_hz)                     # |f - f_pk| <= guard
-    g1 = np.searchsorted(f, f_pk + noise_guard_hz, side="right")
-    inside = lambda i: np.clip(i, first, last + 1)                      # noqa: E731
-    a, b, g0, g1 = inside(a), inside(b), inside(g0), inside(g1)
-    ga, gb = np.clip(g0, a, b), np.clip(g1, a, b)
-    s_guard_win = _range_sums(psd, ga, gb)
-    s_win = _range_sums(psd, a, b) - s_guard_win
-    n_win = (b - a) - (gb - ga)
-    noise = s_win / np.maximum(n_win, 1)
-    few = np.flatnonzero(n_win < 8)        # too few bins beside the peak: the whole band instead
+    # Noise: mean PSD over a span beside the peak, guard bins excluded, within the search band
+    # (the bins first..last), moved outward past the tone's own skirt (see _noise_floor).
+    noise, n_win = _noise_floor(psd, f, f_pk, first, last, noise_span_hz, noise_guard_hz,
+                                zero_pad)
+    g0 = np.clip(np.searchsorted(f, f_pk - noise_guard_hz), first, last + 1)
+    g1 = np.clip(np.searchsorted(f, f_pk + noise_guard_hz, side="right"), first, last + 1)
+    few = np.flatnonzero(n_win < _MIN_NOISE_BINS)  # too few bins beside the peak: whole band
     if few.size:
         s_all = (np.sum(psd[few, first:last + 1], axis=1, dtype=float)
                  - _range_sums(psd[few], g0[few], g1[few]))

@@ -58,8 +58,8 @@ from ..transmitter import wiener_phase
 from ..transmitter.mzm import mzm_drive_angles
 from ..units import ELEMENTARY_CHARGE_C
 from .budget import coupler_field_transmission, make_budget, responsivities
-from .common import (analyze_block, concatenate_blocks, detection_flags, finish_outputs,
-                     optimal_phase, peak_search_max_hz)
+from .common import (analyze_block, concatenate_blocks, detection_flags, echo_mean_offset_s,
+                     finish_outputs, optimal_phase, peak_search_max_hz)
 from .echoes import Echoes
 
 _TABLE_POINTS = 4097        # Bessel tables over the envelope w in [0, 1] (linear interpolation:
@@ -252,7 +252,7 @@ def _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns) 
         returns = ShotReturns(power_factor=returns.power_factor * shot_returns.power_factor,
                               phase_rad=returns.phase_rad + shot_returns.phase_rad,
                               doppler_hz=returns.doppler_hz + shot_returns.doppler_hz)
-    flags = detection_flags(config, bud, returns)
+    flags = detection_flags(config, bud, returns, nyquist_hz=top)
     if bud.f_beat_hz > top and "beat_out_of_band" not in flags:
         flags.append("beat_out_of_band")   # above the simulated band: it would alias
     cp = config.channel.carrier_phase
@@ -434,7 +434,9 @@ def _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns) 
             flags.append("saturation")
     result, extra = concatenate_blocks(blocks)
     return finish_outputs(config, bud, result, extra, circuit[0 if mode == "homodyne" else 1],
-                          flags, returns, tier="baseband")
+                          flags, returns, tier="baseband", nyquist_hz=top,
+                          delay_offset_s=None if echoes is None
+                          else echo_mean_offset_s((offsets, weights)))
 
 
 def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, var_v2: np.ndarray,

@@ -72,10 +72,19 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     return np.where(down_in & (~up_in | coin), down, up)
 
 
-def detection_flags(config, bud, returns=None) -> list[str]:
+def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
+    """Flags of a batch from its budget: ``no_return`` (zero received power), ``no_lo`` (a
+    coherent receiver with zero LO power: nothing to beat with), ``fiber_acceptance_exceeded``,
+    ``doppler_ambiguous``; FM chirps: ``no_overlap``, ``beat_out_of_band``,
+    ``beat_above_nyquist`` (the beat kappa x lag above ``nyquist_hz``: the tier's Nyquist
+    frequency, or the top of the band the baseband tier simulates) and ``range_ambiguous`` (the
+    delay differs from the reference delay by less than zero or a chirp period or more: the
+    range read from the beat is off by a multiple of c T / 2n)."""
     flags = []
     if bud.psig_w <= 0 or (returns is not None and not np.any(returns.power_factor > 0)):
         flags.append("no_return")
+    if config.system.receiver == "coherent" and config.balanced.lo_power_w <= 0:
+        flags.append("no_lo")
     if "coupling" in config.effects.enabled:
         c = config.effects.coupling
         # Marginal ray of the focal cone against the fiber's acceptance (Sec. 2.6: d/f <= 0.2).
@@ -89,9 +98,90 @@ def detection_flags(config, bud, returns=None) -> list[str]:
         no_overlap, out_of_band = beat_flags(config, bud, bud.lag_s, bud.f_beat_hz)
         if no_overlap:
             flags.append("no_overlap")
-        if out_of_band:
+        above = nyquist_hz is not None and bud.f_beat_hz > nyquist_hz
+        if out_of_band or above:
             flags.append("beat_out_of_band")
+        if above:
+            flags.append("beat_above_nyquist")
+        if range_ambiguous(bud, bud.delay_s - bud.ref_delay_s):
+            flags.append("range_ambiguous")
     return flags
+
+
+def range_ambiguous(bud, delay_minus_ref_s):
+    """True (elementwise) where a return's delay minus the reference delay lies outside
+    [0, T), T the chirp period: its beat is that of a delay a whole number of periods away, so
+    the range read from it is off by a multiple of c T / (2 n)."""
+    d = np.asarray(delay_minus_ref_s, float)
+    return ((d < 0) | (d >= bud.train.period_s))[()]
+
+
+# Outputs that say where the beat is (the range and the line's width), and those read from the
+# spectrum's peak (its power, SNR and the resolution derived from it).
+_BEAT_KEYS = ("f_beat_hz", "d_rx", "d_lo", "d_hi", "d_error", "d_3dB")
+_RANGE_KEYS = ("d_rx", "d_lo", "d_hi", "d_error")
+
+
+def unmeasured_masks(config, bud, flags: list, n: int, *, power_factor=None,
+                     delay_offset_s=None, nyquist_hz=None):
+    """Per-shot masks (silent, off_band, ambiguous) of the shots whose beat a tier cannot read:
+
+    * silent: no signal to beat: zero received power (``no_return``), no LO (``no_lo``), or FM
+      chirps that do not overlap (``no_overlap``);
+    * off_band: the beat lies outside the processed band (``beat_out_of_band``) or above the
+      Nyquist frequency ``nyquist_hz`` (``beat_above_nyquist``): the peak found is not the beat;
+    * ambiguous: the delay lies outside [tau_ref, tau_ref + T) (``range_ambiguous``).
+
+    ``delay_offset_s`` (n,): each shot's power-weighted mean echo delay offset from the budget's
+    delay (footprint echoes), else 0. The flags a shot has and ``flags`` lacks are appended to
+    ``flags``."""
+    pf = np.ones(n) if power_factor is None else np.broadcast_to(
+        np.asarray(power_factor, float), (n,))
+    silent = (bud.psig_w * pf <= 0) | ("no_return" in flags) | ("no_lo" in flags)
+    off_band = np.zeros(n, bool)
+    ambiguous = np.zeros(n, bool)
+    if config.system.modulation == "fm_chirp":
+        off = 0.0 if delay_offset_s is None else np.broadcast_to(
+            np.asarray(delay_offset_s, float), (n,))
+        raw = np.broadcast_to((bud.delay_s + off) - bud.ref_delay_s, (n,))
+        lag = np.mod(raw, bud.train.period_s)
+        f_b = bud.rate_hz_per_s * lag
+        no_overlap, out_of_band = (np.broadcast_to(m, (n,)) for m in beat_flags(config, bud, lag, f_b))
+        above = (f_b > nyquist_hz) if nyquist_hz is not None else np.zeros(n, bool)
+        ambiguous = np.broadcast_to(range_ambiguous(bud, raw), (n,))
+        for name, mask in (("no_overlap", no_overlap), ("beat_out_of_band", out_of_band | above),
+                           ("beat_above_nyquist", above), ("range_ambiguous", ambiguous)):
+            if np.any(mask) and name not in flags:
+                flags.append(name)
+        silent = silent | no_overlap
+        off_band = out_of_band | above
+    return silent, off_band, ambiguous
+
+
+def null_unmeasured(out: dict, silent, off_band, ambiguous, *, spectrum_read: bool) -> dict:
+    """``out`` with no number a tier cannot stand behind (:func:`unmeasured_masks`): silent
+    shots read zero beat power (Crx, SNR -inf dB, d_res inf) and no beat or range (NaN);
+    off-band shots no beat or range, and when the tier reads its numbers off a spectrum
+    (``spectrum_read``) no peak power, SNR or resolution either (the peak is not the beat);
+    ambiguous shots no range. Arrays of the other shots are untouched."""
+    out = dict(out)
+
+    def put(key, mask, value):
+        if key in out and np.any(mask):
+            out[key] = np.where(mask, value, out[key])
+
+    for key in _BEAT_KEYS:
+        put(key, silent | off_band, np.nan)
+    for key in _RANGE_KEYS:
+        put(key, ambiguous, np.nan)
+    peak_keys = ["Crx", "SNR"] + [k for k in out if k.endswith(("_Crx", "_SNR"))]
+    if spectrum_read:
+        for key in peak_keys + ["d_res"]:
+            put(key, off_band & ~silent, np.nan)
+    for key in peak_keys:
+        put(key, silent, -np.inf)
+    put("d_res", silent, np.inf)
+    return out
 
 
 def beat_flags(config, bud, lag_s, f_beat_hz):
@@ -106,12 +196,17 @@ def beat_flags(config, bud, lag_s, f_beat_hz):
 
 
 def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=None, tier: str,
-                     lag_s=None, lag_lo_s=None, lag_hi_s=None, power_factor=None) -> dict:
+                     lag_s=None, lag_lo_s=None, lag_hi_s=None, power_factor=None,
+                     nyquist_hz=None, delay_offset_s=None) -> dict:
     """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model.
 
     ``power_factor`` (per shot) is what the channel's effects did to the received power (speckle):
-    Psig reports each shot's own received power.
+    Psig reports each shot's own received power. Shots whose beat the tier cannot read (no
+    signal, no LO, no chirp overlap, a beat outside the processed band or above ``nyquist_hz``,
+    a range ambiguous by a chirp period: :func:`unmeasured_masks`, ``delay_offset_s`` the
+    shots' mean echo offsets) report NaN (JSON null) for what is not measured, and their flags.
     """
+    flags = list(flags)
     n = np.size(result.snr)
     rate = bud.rate_hz_per_s
     if lag_s is None:
@@ -153,6 +248,10 @@ def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=Non
             out[key[:-4] + "_SNR"] = np.atleast_1d(ratio_db(value))
         else:
             out[key] = np.atleast_1d(value)
+    masks = unmeasured_masks(config, bud, flags, n, power_factor=power_factor,
+                             delay_offset_s=delay_offset_s, nyquist_hz=nyquist_hz)
+    if any(np.any(m) for m in masks):
+        out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
     out["flags"] = list(flags)
     out["tier"] = tier
     if result.spectrum_f_hz is not None:
@@ -272,23 +371,36 @@ def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResul
 
 
 def finish_outputs(config, bud, result: PeakResult, extra: dict, noise, flags, returns, *,
-                   tier: str) -> dict:
-    """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds)."""
+                   tier: str, nyquist_hz=None, delay_offset_s=None) -> dict:
+    """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds);
+    ``nyquist_hz``, ``delay_offset_s``: see :func:`assemble_outputs`."""
     if config.system.modulation == "pn_code":
         return assemble_outputs(config, bud, result, noise, flags, tier=tier, lag_s=result.f_peak_hz,
                                 lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
                                 power_factor=returns.power_factor)
     return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier=tier,
-                            power_factor=returns.power_factor)
+                            power_factor=returns.power_factor, nyquist_hz=nyquist_hz,
+                            delay_offset_s=delay_offset_s)
+
+
+def echo_mean_offset_s(echo_arrays):
+    """(batch,) power-weighted mean delay offset of each shot's echoes ``(offsets, weights,
+    phases)`` (arrays (batch, k)), or None for a point target."""
+    if echo_arrays is None:
+        return None
+    offsets, weights = np.asarray(echo_arrays[0], float), np.asarray(echo_arrays[1], float)
+    total = weights.sum(axis=-1)
+    return np.sum(weights * offsets, axis=-1) / np.where(total > 0, total, 1.0)
 
 
 def process_records(config, bud, records: dict, noise, load_ohm: float, flags: list, returns, *,
                     fs_hz: float, transfer, search_max_hz: float, keep_spectrum: bool, tier: str,
-                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None) -> dict:
+                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None,
+                    nyquist_hz=None, delay_offset_s=None) -> dict:
     """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
     further per-shot outputs to report)."""
     result, arms = analyze_block(config, records, load_ohm, flags, fs_hz=fs_hz, transfer=transfer,
                                  search_max_hz=search_max_hz, keep_spectrum=keep_spectrum,
                                  pn_reference=pn_reference, spectrum_analyzer=spectrum_analyzer)
     return finish_outputs(config, bud, result, {**(extra or {}), **arms}, noise, flags, returns,
-                          tier=tier)
+                          tier=tier, nyquist_hz=nyquist_hz, delay_offset_s=delay_offset_s)

@@ -30,6 +30,7 @@ from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
 from ..channel.effects import channel_returns
+from .baseband import _field_peak
 from .common import assemble_outputs, detection_flags, doppler_line_hz, optimal_phase
 
 _GRID = 8192  # points over the record for slowly varying envelopes
@@ -178,7 +179,10 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     mode = config.system.coherent_mode if rx == "coherent" else "direct"
     cp = config.channel.carrier_phase
     returns = channel_returns(config, batch, rng)
-    flags = detection_flags(config, bud, returns)
+    nyquist = sim.sample_rate_hz / 2   # the rf chain this closed form stands for samples at Fs
+    flags = detection_flags(config, bud, returns, nyquist_hz=nyquist)
+    if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
+        flags.append("saturation")
     if cp == "random":
         # The mean over a uniform phase; the per-shot fading is carrier_fading_factor.
         phase_power = np.full(batch, 0.5)
@@ -276,7 +280,24 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                         f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
                         snr=np.broadcast_to(np.asarray(snr, float), (batch,)))
     return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="link",
-                            power_factor=returns.power_factor)
+                            power_factor=returns.power_factor, nyquist_hz=nyquist)
+
+
+def _saturates(config, bud, s_sig: float, resp: dict, power_factor) -> bool:
+    """The balanced pair's RF amplifier saturates (the rf and baseband tiers' ``saturation``
+    test): the differential optical power that balancing leaves, at its peak, exceeds
+    ``balanced.saturation_power_w``. Its peak is the baseband tier's bound of the full-rate
+    difference current, 2 |c_1 - c_2| sqrt(P_lo P_sig) max|a_lo| max|a_sig| over the mean
+    responsivity (c_j the arms' coupler products r_j S_j0 S_j1*), for the strongest shot."""
+    b = config.balanced
+    S = COUPLER_3DB * coupler_field_transmission(config)
+    r1, r2 = resp["balanced_1"], resp["balanced_2"]
+    cross = r1 * S[0, 0] * np.conj(S[0, 1]) - r2 * S[1, 0] * np.conj(S[1, 1])
+    s_lo = b.lo_power_w / bud.mzm_mean_transmission
+    pf = float(np.max(power_factor)) if np.size(power_factor) else 0.0
+    amp = np.sqrt(s_lo * s_sig * max(pf, 0.0))
+    diff_peak = amp * 2 * abs(cross) * _field_peak(config, bud) ** 2 / (0.5 * (r1 + r2))
+    return bool(diff_peak > b.saturation_power_w)
 
 
 def _mixer_noise_factor(train, t, gate, f_b, bandwidth_hz, ref_delay_s):

@@ -23,7 +23,8 @@ from ..transmitter import mzm_field, wiener_phase
 from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_budget,
                      responsivities)
 from ..channel.effects import channel_returns, effect_rng
-from .common import detection_flags, optimal_phase, peak_search_max_hz, process_records
+from .common import (detection_flags, echo_mean_offset_s, optimal_phase, peak_search_max_hz,
+                     process_records)
 from .echoes import Echoes
 
 
@@ -120,7 +121,7 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     rx = sysc.receiver
     mode = sysc.coherent_mode if rx == "coherent" else "direct"
     returns = channel_returns(config, batch, rng)  # enabled effects, on their own streams
-    flags = detection_flags(config, bud, returns)
+    flags = detection_flags(config, bud, returns, nyquist_hz=fs / 2)
     per_shot = (batch, 1, 1)
 
     # Laser phase noise ('phase_noise' effect: the config ties it to a linewidth > 0).
@@ -221,7 +222,8 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     return process_records(config, bud, records, noise, load, flags, returns, fs_hz=fs,
                            transfer=transfer, search_max_hz=peak_search_max_hz(config, bud),
                            keep_spectrum=keep_spectrum, tier="rf", extra=extra,
-                           pn_reference=pn_reference)
+                           pn_reference=pn_reference, nyquist_hz=fs / 2,
+                           delay_offset_s=echo_mean_offset_s(echo_arrays))
 
 
 def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):

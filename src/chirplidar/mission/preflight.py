@@ -1,0 +1,206 @@
+"""Before a run flies: what a planner should be warned about, and how big the run is.
+
+:func:`planner_warnings` looks at a checked configuration and its scene for values that are
+legal but implausible (a power typed in the wrong unit, a platform that cannot point, a line
+spacing no line fits, a path that skims the terrain). They are printed before any work and
+kept in the results file's ``planner_warnings`` attribute.
+
+:func:`run_estimate` sizes the run: shots, beam-shots, chunks, the disk the results take and the
+time, from a short timed pilot of the run's own first shots (its outputs are discarded; the
+run's random streams are untouched). A run above :data:`LARGE_RUN_HOURS` or
+:data:`LARGE_RUN_GB` needs ``--yes`` (``chirplidar run``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+#: A CW chirped lidar's laser above this is suspicious: the thesis's sources are a few mW
+#: (8.58 mW, Table 4.4) and a fibre amplifier gives a few W; more is probably mW typed as W.
+MAX_PLAUSIBLE_LASER_W = 5.0
+#: Pointing jitter above this (per axis, rms) is more than any survey platform's: small-UAV
+#: gimbals hold ~1e-4 rad, aircraft INS-stabilized mounts ~1e-5, ICESat-2 ~1e-5 rad.
+MAX_PLAUSIBLE_JITTER_RAD = 1e-2
+#: Flying lower than this above the terrain anywhere on the path leaves no margin for the
+#: terrain model's error (a DEM's metre-level error, a synthetic surface's features).
+MIN_CLEARANCE_M = 10.0
+#: Runs above these need ``--yes``: hours of computing on the planned cores, or gigabytes.
+LARGE_RUN_HOURS = 2.0
+LARGE_RUN_GB = 20.0
+#: The timed pilot: a first shot cheaper than this is followed by this many shots.
+PILOT_CHEAP_S = 0.5
+PILOT_SHOTS = 2048
+
+
+class PlannerWarning(UserWarning):
+    """A legal but implausible value of a run (printed before any work, kept in the file)."""
+
+
+def planner_warnings(config, scene, plan) -> list[str]:
+    """One sentence for each legal but implausible value of a run (see the module docstring)."""
+    out = []
+    power = config.laser.power_w
+    if power > MAX_PLAUSIBLE_LASER_W:
+        out.append(f"laser.power_w = {power:g} W is more than a CW chirped lidar's laser "
+                   f"(> {MAX_PLAUSIBLE_LASER_W:g} W; the thesis's is 8.58 mW): is it mW typed "
+                   "as W?")
+    jitter = config.attitude.jitter_rad_rms
+    if jitter > MAX_PLAUSIBLE_JITTER_RAD:
+        out.append(f"attitude.jitter_rad_rms = {jitter:g} rad ({np.degrees(jitter):.3g} deg) "
+                   f"per axis is more than any survey platform's pointing jitter (> "
+                   f"{MAX_PLAUSIBLE_JITTER_RAD:g} rad): is it in degrees or mrad?")
+    out += _line_spacing(config, scene)
+    out += _clearance(config, scene, plan)
+    return out
+
+
+def _line_spacing(config, scene) -> list[str]:
+    from .survey import _flight_section, survey_polygon_xy
+
+    polygon = survey_polygon_xy(config, scene)
+    if polygon is None:
+        return []
+    sec = _flight_section(config)
+    heading = np.radians(sec.heading_deg) if sec.heading_deg is not None else None
+    if heading is None:
+        return []
+    across = np.array([np.cos(heading), -np.sin(heading)])   # grid (x, y), right of the lines
+    width = float(np.ptp(polygon @ across))
+    if sec.line_spacing_m > width:
+        return [f"platform.{config.platform.kind}.line_spacing_m = {sec.line_spacing_m:g} m is "
+                f"wider than the survey polygon across the lines ({width:.0f} m): one line is "
+                "flown"]
+    return []
+
+
+def _clearance(config, scene, plan) -> list[str]:
+    """The path's lowest height above the terrain, for platforms flown at an absolute height."""
+    from .survey import _flight_section
+
+    sec = _flight_section(config)
+    if sec is None or getattr(sec, "altitude_mode", "absolute") != "absolute":
+        return []
+    duration = getattr(plan.path, "duration_s", None)
+    if not duration:
+        return []
+    t = np.linspace(0.0, duration, 4001)
+    xyh = plan.path.positions(t)
+    ground = scene.ground_height_m(xyh[:, 0], xyh[:, 1])
+    over = np.isfinite(ground)
+    if not over.any():
+        return []
+    clearance = xyh[over, 2] - ground[over]
+    k = int(np.argmin(clearance))
+    lowest = float(clearance[k])
+    if lowest >= MIN_CLEARANCE_M:
+        return []
+    where = f"at x = {xyh[over][k, 0]:.0f} m, y = {xyh[over][k, 1]:.0f} m (t = {t[over][k]:.0f} s)"
+    key = f"platform.{config.platform.kind}.altitude_m"
+    if lowest < 0:
+        return [f"{key} = {sec.altitude_m:g} m (absolute) flies {-lowest:.0f} m below the "
+                f"terrain {where}, over {100 * np.mean(clearance < 0):.0f} % of the path over the "
+                "scene: the shots there look up from inside the ground; raise it or use "
+                "altitude_mode = 'above_ground'"]
+    return [f"{key} = {sec.altitude_m:g} m (absolute) passes {lowest:.1f} m above the terrain "
+            f"{where} (< {MIN_CLEARANCE_M:g} m)"]
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """The size of a run (see :func:`run_estimate`)."""
+
+    shots: int
+    beams: int
+    chunks: int
+    pilot_shots: int
+    seconds_per_shot: float    # one core, from the pilot
+    seconds_per_chunk: float   # a chunk's fixed cost (tables, set-up), one core
+    cores: int
+    disk_bytes: int            # uncompressed: the file is smaller (zlib)
+
+    @property
+    def seconds(self) -> float:
+        one_core = self.shots * self.seconds_per_shot + self.chunks * self.seconds_per_chunk
+        return one_core / min(self.cores, self.chunks)
+
+    @property
+    def large(self) -> bool:
+        return self.seconds > LARGE_RUN_HOURS * 3600 or self.disk_bytes > LARGE_RUN_GB * 1e9
+
+    def as_dict(self) -> dict:
+        return {"shots": self.shots, "beams": self.beams, "beam_shots": self.shots * self.beams,
+                "chunks": self.chunks, "cores": self.cores,
+                "estimated_seconds": self.seconds, "estimated_disk_bytes_at_most": self.disk_bytes,
+                "pilot_shots": self.pilot_shots}
+
+
+def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEstimate:
+    """The run's size and its time on ``cores`` cores, timed on a pilot of its first shots.
+
+    ``measure_chunk(config, scene, geometry, seq)`` is the run's tier dispatch. The pilot times
+    the first shot. An expensive one (>= :data:`PILOT_CHEAP_S`: rf, baseband) is taken as the
+    cost of every shot. Cheap shots (the link tier) cost less per shot in large batches and a
+    chunk has a fixed cost (its tables): a run of at most ``2 * PILOT_SHOTS`` shots is timed
+    whole, a larger one on ``PILOT_SHOTS / 4`` and ``PILOT_SHOTS`` shots, whose difference
+    gives the cost per shot. The pilot has its own seed: the run's outputs do not depend on it.
+    """
+    from .results import SCHEMA
+    from .survey import chunk_geometry
+
+    t_first = plan.chunk_times(0)
+    seq = np.random.SeedSequence(0)
+
+    def timed(n: int) -> float:
+        start = time.perf_counter()
+        geom = chunk_geometry(plan, scene, config, t_first[:n], seq,
+                              config.survey.subrays_per_beam)
+        measure_chunk(config, scene, geom, seq)
+        return time.perf_counter() - start
+
+    one = timed(1)
+    if one < PILOT_CHEAP_S:
+        one = timed(1)   # the first call also pays for imports and caches
+    per_shot, per_chunk, pilot = one, 0.0, 1
+    if one < PILOT_CHEAP_S and plan.n_shots > 1:
+        if plan.n_shots <= 2 * PILOT_SHOTS:
+            pilot = min(plan.n_shots, t_first.size)
+            per_shot = timed(pilot) / pilot
+        else:
+            small, pilot = PILOT_SHOTS // 4, min(PILOT_SHOTS, t_first.size)
+            t_small, t_big = timed(small), timed(pilot)
+            per_shot = max(t_big - t_small, 0.0) / (pilot - small)
+            per_chunk = max(t_small - small * per_shot, 0.0)
+    beams = plan.beams.n_beams
+    return RunEstimate(shots=plan.n_shots, beams=beams, chunks=plan.n_chunks,
+                       pilot_shots=pilot, seconds_per_shot=per_shot, seconds_per_chunk=per_chunk,
+                       cores=max(int(cores), 1),
+                       disk_bytes=int(plan.n_shots * beams * 8 * len(SCHEMA)))
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.3g} {unit}"
+    return f"{n_bytes:.0f} B"
+
+
+def format_estimate(est: RunEstimate) -> str:
+    """One line: ``159 000 shots x 1 beam in 8 chunks: about 7 s on 1 core ...``."""
+    def plural(n, word):
+        return f"{n:,} {word}{'s' if n != 1 else ''}".replace(",", " ")
+
+    return (f"{plural(est.shots, 'shot')} x {plural(est.beams, 'beam')} in "
+            f"{plural(est.chunks, 'chunk')}: about {_duration(est.seconds)} on "
+            f"{plural(est.cores, 'core')} (timed on {plural(est.pilot_shots, 'shot')}), at most "
+            f"{_size(est.disk_bytes)} on disk")
