@@ -98,6 +98,16 @@ def test_no_lo_in_every_tier(extra):
         _assert_plausible(_shot(extra, tier))
 
 
+def test_no_chirp_drive_reports_no_beat_or_range_in_every_tier():
+    """waveform.vpp_v = 0 (chrp.Vpp): no chirp on the modulator, so no beat (found by
+    tests/test_bad_input.py: the link tier reported a 5.8 GHz beat and -118 km, flags [])."""
+    for tier in TIERS:
+        r = _shot(["chrp.Vpp=0"], tier)
+        assert "no_chirp" in r["flags"], tier
+        assert all(np.isnan(r[k]) for k in BEAT_KEYS), tier
+        assert r["SNR"] == -np.inf, tier
+
+
 def test_no_lo_heterodyne_link():
     het = ["sys.CxMode=het", "mzm.Vdc=1.0"]
     r = _shot(het + ["COH.P_LO=0"], "link")

@@ -1141,7 +1141,9 @@ def _debug() -> bool:
 def _fault_line(command: str, exc: Exception) -> tuple[str, int] | None:
     """(one line, exit code) for an error that is not a bug of the command: a run's fault
     (``runner.RunError``: its own line and code), an OS error of the file system (its file and
-    reason, :data:`EXIT_IO`); in ``run``, any other error too (what failed, exit code 1).
+    reason, :data:`EXIT_IO`); in ``shot`` and ``sweep`` a ValueError of the physics (a
+    configuration it cannot simulate, exit 2); in ``run``, any other error too (what failed,
+    exit code 1).
     None: let it raise (traceback)."""
     runner = sys.modules.get("chirplidar.mission.runner")
     if runner is not None and isinstance(exc, getattr(runner, "RunError", ())):
@@ -1149,6 +1151,11 @@ def _fault_line(command: str, exc: Exception) -> tuple[str, int] | None:
     if isinstance(exc, OSError) and isinstance(exc.errno, int) and exc.errno > 0 \
             and exc.filename is not None:
         return f"{exc.filename}: {os.strerror(exc.errno).lower()}", EXIT_IO
+    if command in ("shot", "sweep") and isinstance(exc, ValueError):
+        # the physics refuses a configuration it cannot simulate (e.g. a phase screen coarser
+        # than r0): the user's input, in one line
+        text = (str(exc).strip().splitlines() or [""])[0]
+        return f"cannot simulate this configuration: {text}", 2
     if command == "run":
         text = (str(exc).strip().splitlines() or [""])[0]
         what = type(exc).__name__ + (f": {text}" if text else "")

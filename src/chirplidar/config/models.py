@@ -10,6 +10,7 @@ The thesis names of Tables 4.1-4.9 and 4.11 map onto these keys in :mod:`chirpli
 
 from __future__ import annotations
 
+import math
 import typing
 from typing import Literal
 
@@ -36,6 +37,14 @@ def _translate(value, table: str):
 #: Any key in dB beyond +-this is refused: 10^30 is no gain, loss or SNR an instrument has,
 #: and powers that far apart overflow the single-precision records.
 MAX_DB = 300.0
+#: Any non-zero number of a configuration lies within these magnitudes (SI units): the
+#: smallest quantities the simulator sees (Cn^2 ~ 1e-17 m^-2/3, NEP ~ 1e-12 W/rtHz) and their
+#: squares are far inside; 1e-300 (a typo) underflows to 0 when squared.
+SMALLEST_SI = 1e-100
+LARGEST_SI = 1e100
+#: dB keys whose losses MAX_DB does not bound, only their gains: a path loss may be anything (a
+#: survey shot over specular water far off its glint loses 500 dB: no signal, as inf is).
+ANY_LOSS_DB = frozenset({"extra_attenuation_db"})
 #: A chirp's frequency ramp must span at least this many samples to be a chirp at all.
 MIN_RAMP_SAMPLES = 4
 
@@ -60,10 +69,16 @@ class StrictModel(BaseModel):
         if isinstance(value, bool) and info.field_name in cls.model_fields and \
                 not _accepts_bool(cls.model_fields[info.field_name].annotation):
             raise ValueError("expected a number or text, not true or false")
-        if info.field_name.endswith("_db") and isinstance(value, (int, float)) and \
-                not isinstance(value, bool) and abs(value) > MAX_DB and abs(value) != np.inf:
-            raise ValueError(f"{value:g} dB is a power ratio beyond 1e{MAX_DB / 10:.0f}: not "
-                             "a physical gain, loss or SNR (is it in linear units?)")
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and \
+                math.isfinite(value):
+            loss_only = info.field_name in ANY_LOSS_DB   # any loss, but not any gain
+            if info.field_name.endswith("_db") and (-value if loss_only else abs(value)) > MAX_DB:
+                raise ValueError(f"{value:g} dB is a power ratio beyond 1e{MAX_DB / 10:.0f}: "
+                                 "not a physical gain, loss or SNR (is it in linear units?)")
+            if value != 0 and not SMALLEST_SI <= abs(value) <= LARGEST_SI:
+                raise ValueError(f"{value:g} is outside {SMALLEST_SI:g}..{LARGEST_SI:g} in "
+                                 "magnitude: no quantity in SI units is that small or large "
+                                 "(its square under- or overflows)")
         return value
 
 

@@ -440,7 +440,8 @@ def _link_table(config, r_lo, r_hi, a_lo, a_hi, doppler: bool, lag_s: float | No
         over = {"channel.distance_m": float(r)}
         if lag_s is not None:
             delay = 2.0 * config.channel.group_index * float(r) / SPEED_OF_LIGHT_M_S
-            over["system.reference_delay_s"] = delay - lag_s
+            # (a node nearer than the lag reads the lag it can: T_ov is taken at each node)
+            over["system.reference_delay_s"] = max(delay - lag_s, 0.0)
         return config_with(cfg, over)
 
     n_r = 1 if r_hi <= r_lo else int(min(33, np.ceil(np.log(r_hi / r_lo) / _RANGE_STEP) + 1))
@@ -656,6 +657,8 @@ def _unread_nodes(node_cfg, config, bud, unread, snr_ok, t_ov, split, r_m, att_d
     snr_u = np.zeros(t_shot.shape)
     split_u = np.ones(t_shot.shape)
     tone = ~no_overlap[unread]
+    if config.system.receiver == "coherent" and config.balanced.lo_power_w <= 0:
+        tone[:] = False   # no LO: nothing to beat with
     if np.any(tone):
         r_u, a_u = r_m[unread], att_db[unread]
         r_nodes, a_nodes, table, t_nodes, split_n = _link_table(

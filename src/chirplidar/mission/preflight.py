@@ -52,6 +52,12 @@ def planner_warnings(config, scene, plan) -> list[str]:
         out.append(f"attitude.jitter_rad_rms = {jitter:g} rad ({np.degrees(jitter):.3g} deg) "
                    f"per axis is more than any survey platform's pointing jitter (> "
                    f"{MAX_PLAUSIBLE_JITTER_RAD:g} rad): is it in degrees or mrad?")
+    if config.system.receiver == "coherent" and config.balanced.lo_power_w <= 0:
+        out.append("balanced.lo_power_w (COH.P_LO) = 0: a coherent receiver without a local "
+                   "oscillator detects nothing; every shot will be below the detection threshold")
+    if config.waveform.vpp_v <= 0:
+        out.append("waveform.vpp_v (chrp.Vpp) = 0: no chirp drives the modulator, so there is "
+                   "no beat; every shot will be below the detection threshold")
     out += _line_spacing(config, scene)
     out += _clearance(config, scene, plan)
     return out

@@ -288,6 +288,10 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
         if hasattr(path, "duration_s") and stop > path.duration_s * (1 + 1e-12):
             raise ConfigError(f"{source}: survey.stop_s = {stop:g} s is after the end of the "
                               f"path ({path.duration_s:.1f} s)")
+        if sv.start_s > stop:
+            raise ConfigError(f"{source}: survey.start_s = {sv.start_s:g} s is after the end of "
+                              f"the span ({stop:g} s" + (", the end of the path)" if sv.stop_s
+                                                         is None else ", survey.stop_s)"))
         n_shots = (stop - sv.start_s) * sv.prf_hz
         if n_shots > MAX_SURVEY_SHOTS:
             raise ConfigError(f"{source}: survey.start_s..stop_s ({sv.start_s:g}..{stop:g} s) "

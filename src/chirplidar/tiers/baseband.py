@@ -244,7 +244,7 @@ def _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns) 
     r = (resp["balanced_1"], resp["balanced_2"])
     S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
     cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]   # arm j: 2 Re(cross_j X)
-    s_lo = b.lo_power_w / bud.mzm_mean_transmission
+    s_lo = bud.lo_power_scale(b.lo_power_w)
     s_sig = config.laser.power_w * bud.tx_gain * bud.h
 
     returns = channel_returns(config, batch, rng)   # enabled effects, on their own streams

@@ -35,6 +35,13 @@ class Budget:
     group_index: float
     quantized: bool
 
+    def lo_power_scale(self, lo_power_w: float) -> float:
+        """The LO power over the modulator's mean transmission: the power of the LO field
+        whose modulated mean is ``lo_power_w`` (the LO is a tap of the modulated laser). Zero
+        when the modulator transmits nothing (biased at null without a drive): no LO either."""
+        t = self.mzm_mean_transmission
+        return lo_power_w / t if t > 0 else 0.0
+
     @property
     def d_offset_m(self) -> float:
         return SPEED_OF_LIGHT_M_S * self.ref_delay_s / (2.0 * self.group_index)

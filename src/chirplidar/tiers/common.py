@@ -11,6 +11,7 @@ from ..processing import analyze_records
 from ..processing.spectrum import PeakResult, _parabolic
 from ..receiver import HYBRID_90
 from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
+from ..transmitter.mzm import mzm_harmonic_dominates
 
 # Thesis Table 4.10: output names and units.
 OUTPUT_UNITS: dict[str, str] = {
@@ -74,7 +75,10 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
 
 def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
     """Flags of a batch from its budget: ``no_return`` (zero received power), ``no_lo`` (a
-    coherent receiver with zero LO power: nothing to beat with), ``fiber_acceptance_exceeded``,
+    coherent receiver with zero LO power: nothing to beat with), ``no_chirp`` (no drive voltage
+    on the modulator: no chirp, so no beat), ``harmonic_beat`` (the modulator's bias puts more
+    power at twice the chirp phase than at the chirp: the strongest beat is at 2 f_R, not read),
+    ``fiber_acceptance_exceeded``,
     ``doppler_ambiguous``; FM chirps: ``no_overlap``, ``beat_out_of_band``,
     ``beat_above_nyquist`` (the beat kappa x lag above ``nyquist_hz``: the tier's Nyquist
     frequency, or the top of the band the baseband tier simulates) and ``range_ambiguous`` (the
@@ -85,6 +89,12 @@ def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
         flags.append("no_return")
     if config.system.receiver == "coherent" and config.balanced.lo_power_w <= 0:
         flags.append("no_lo")
+    if config.waveform.vpp_v <= 0:
+        flags.append("no_chirp")
+    elif config.system.modulation == "fm_chirp" and mzm_harmonic_dominates(
+            bud.train, config.modulator.bias_v, config.modulator.v_pi_v,
+            field=config.system.receiver == "coherent"):
+        flags.append("harmonic_beat")
     if "coupling" in config.effects.enabled:
         c = config.effects.coupling
         # Marginal ray of the focal cone against the fiber's acceptance (Sec. 2.6: d/f <= 0.2).
@@ -111,9 +121,20 @@ def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
 def range_ambiguous(bud, delay_minus_ref_s):
     """True (elementwise) where a return's delay minus the reference delay lies outside
     [0, T), T the chirp period: its beat is that of a delay a whole number of periods away, so
-    the range read from it is off by a multiple of c T / (2 n)."""
+    the range read from it is off by a multiple of c T / (2 n); or where its strongest tone is
+    that of the next reference chirp (:func:`next_chirp_tone`)."""
     d = np.asarray(delay_minus_ref_s, float)
-    return ((d < 0) | (d >= bud.train.period_s))[()]
+    return ((d < 0) | (d >= bud.train.period_s) | next_chirp_tone(bud, d))[()]
+
+
+def next_chirp_tone(bud, delay_minus_ref_s):
+    """True (elementwise) where the lag within the period, tau - tau_ref mod T, is over half the
+    period and the return's ramp overlaps the next reference ramp (T - lag < the rise time):
+    that overlap, longer than the return's own (rise - lag, if any), gives the strongest tone,
+    kappa (T - lag), the beat of a lag of lag - T: the range read from it is off by c T / 2n."""
+    period, rise = bud.train.period_s, bud.train.rise_s
+    lag = np.mod(np.asarray(delay_minus_ref_s, float), period)
+    return ((lag > 0.5 * period) & (period - lag < rise))[()]
 
 
 # Outputs that say where the beat is (the range and the line's width), and those read from the
@@ -122,22 +143,27 @@ _BEAT_KEYS = ("f_beat_hz", "d_rx", "d_lo", "d_hi", "d_error", "d_3dB")
 _RANGE_KEYS = ("d_rx", "d_lo", "d_hi", "d_error")
 
 
+#: Flags of a batch with nothing to beat: no beat or range is reported.
+_NO_BEAT = ("no_return", "no_lo", "no_chirp")
+
+
 def unmeasured_masks(config, bud, flags: list, n: int, *, power_factor=None,
                      delay_offset_s=None, nyquist_hz=None):
     """Per-shot masks (silent, off_band, ambiguous) of the shots whose beat a tier cannot read:
 
-    * silent: no signal to beat: zero received power (``no_return``), no LO (``no_lo``), or FM
-      chirps that do not overlap (``no_overlap``);
+    * silent: no signal to beat: zero received power (``no_return``), no LO (``no_lo``), no
+      chirp (``no_chirp``), or FM chirps that do not overlap (``no_overlap``);
     * off_band: the beat lies outside the processed band (``beat_out_of_band``) or above the
       Nyquist frequency ``nyquist_hz`` (``beat_above_nyquist``): the peak found is not the beat;
-    * ambiguous: the delay lies outside [tau_ref, tau_ref + T) (``range_ambiguous``).
+    * ambiguous: the delay lies outside [tau_ref, tau_ref + T) or the strongest tone is the
+      next chirp's (``range_ambiguous``; the latter also ``next_chirp_tone`` and off_band).
 
     ``delay_offset_s`` (n,): each shot's power-weighted mean echo delay offset from the budget's
     delay (footprint echoes), else 0. The flags a shot has and ``flags`` lacks are appended to
     ``flags``."""
     pf = np.ones(n) if power_factor is None else np.broadcast_to(
         np.asarray(power_factor, float), (n,))
-    silent = (bud.psig_w * pf <= 0) | ("no_return" in flags) | ("no_lo" in flags)
+    silent = (bud.psig_w * pf <= 0) | any(f in flags for f in _NO_BEAT)
     off_band = np.zeros(n, bool)
     ambiguous = np.zeros(n, bool)
     if config.system.modulation == "fm_chirp":
@@ -149,12 +175,15 @@ def unmeasured_masks(config, bud, flags: list, n: int, *, power_factor=None,
         no_overlap, out_of_band = (np.broadcast_to(m, (n,)) for m in beat_flags(config, bud, lag, f_b))
         above = (f_b > nyquist_hz) if nyquist_hz is not None else np.zeros(n, bool)
         ambiguous = np.broadcast_to(range_ambiguous(bud, raw), (n,))
+        other_tone = np.broadcast_to(next_chirp_tone(bud, raw), (n,))
         for name, mask in (("no_overlap", no_overlap), ("beat_out_of_band", out_of_band | above),
-                           ("beat_above_nyquist", above), ("range_ambiguous", ambiguous)):
+                           ("beat_above_nyquist", above), ("range_ambiguous", ambiguous),
+                           ("next_chirp_tone", other_tone)):
             if np.any(mask) and name not in flags:
                 flags.append(name)
         silent = silent | no_overlap
-        off_band = out_of_band | above
+        # the beat of the next chirp's tone is not this lag's: not read, as out of band
+        off_band = out_of_band | above | other_tone | ("harmonic_beat" in flags)
     return silent, off_band, ambiguous
 
 

@@ -162,7 +162,7 @@ def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
     transfer = None
     extra = {}
     if mode in ("homodyne", "phase_diversity"):
-        s_lo = config.balanced.lo_power_w / bud.mzm_mean_transmission
+        s_lo = bud.lo_power_scale(config.balanced.lo_power_w)
         S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
         b = config.balanced
         dark = b.solar_current_a + b.background_current_a + b.leakage_current_a

@@ -15,7 +15,7 @@ product of two fields then beats at the difference of the chirps (thesis Sec. 3.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import j0, j1
+from scipy.special import j0, j1, jv
 
 
 def mzm_field(v_v: np.ndarray, v_pi_v: float) -> np.ndarray:
@@ -50,3 +50,19 @@ def mzm_power_fundamental(train, bias_v: float, v_pi_v: float, w: np.ndarray) ->
     """Amplitude of the power's component at the chirp phase, |sin(2 alpha) J1(2 beta w)|."""
     alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
     return np.abs(np.sin(2 * alpha) * j1(2 * beta * np.asarray(w)))
+
+
+def mzm_harmonic_dominates(train, bias_v: float, v_pi_v: float, *, field: bool) -> bool:
+    """Whether, at full drive (w = 1), the component at twice the chirp phase outweighs the
+    fundamental, so the strongest beat is the harmonic's (at 2 f_R, read as twice the range):
+    the field's |2 cos(alpha) J2(beta)| against |2 sin(alpha) J1(beta)| (coherent receivers),
+    or the power's |cos(2 alpha) J2(2 beta)| against |sin(2 alpha) J1(2 beta)| (direct
+    detection). A bias near the field's peak (alpha ~ 0) or the power's quadrature-free
+    points does this."""
+    alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
+    if field:
+        fundamental, harmonic = 2 * np.sin(alpha) * j1(beta), 2 * np.cos(alpha) * jv(2, beta)
+    else:
+        fundamental = np.sin(2 * alpha) * j1(2 * beta)
+        harmonic = np.cos(2 * alpha) * jv(2, 2 * beta)
+    return bool(abs(harmonic) > abs(fundamental))
