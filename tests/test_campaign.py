@@ -3,7 +3,9 @@ can reach the terrain, one or more chunks per pass; bad campaign input is one cl
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,6 +14,11 @@ from chirplidar.config.loader import ConfigError
 from chirplidar.mission import runner, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "missions" / "icesat2_campaign.toml"
@@ -100,3 +107,37 @@ def test_shot_finds_a_campaign_shot_in_its_own_pass(month, tmp_path):
                                overrides=MONTH)
     assert shot.geometry["shot_index"] == k
     assert shot.geometry["t_s"] == pytest.approx(plan.t_s[k])
+
+
+def _tle_checksum(line: str) -> str:
+    """A TLE line's first 68 characters with its checksum: the digits' sum, each '-' counting 1,
+    modulo 10 (the TLE format)."""
+    body = line[:68]
+    return body + str(sum(int(c) if c.isdigit() else c == "-" for c in body) % 10)
+
+
+def test_resume_refuses_a_changed_tle(tmp_path, monkeypatch):
+    """Issue 15: a TLE changed between a stopped run and --resume is refused, naming it (the
+    element set is part of the mission's resolved configuration, whose hash the manifest
+    holds)."""
+    from test_run_scale import _interrupted
+
+    line2 = tomllib.loads(CAMPAIGN.read_text())["platform"]["tle"]["line2"]
+    mission = tmp_path / "pass.toml"
+
+    def write(second_line):
+        mission.write_text(f'extends = "{CAMPAIGN}"\n[platform.tle]\nline2 = "{second_line}"\n'
+                           '[survey]\nstart_utc = "2026-10-08T16:00:00Z"\n'
+                           'stop_utc = "2026-10-08T17:00:00Z"\nchunk_shots = 5000\n')
+
+    write(line2)
+    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
+    out, _ = _interrupted(small, tmp_path, monkeypatch, after=1)
+    # the mean motion's last digit changed: another element set, still checksummed
+    changed = _tle_checksum(line2[:62] + str((int(line2[62]) + 1) % 10) + line2[63:])
+    write(changed)
+    with pytest.raises(ConfigError, match=r"--resume: .*platform\.tle\.line2 = "):
+        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    write(line2)                                     # the same element set again: resumes
+    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    assert res.summary["shots"] > 5000

@@ -882,9 +882,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dry-run", action="store_true",
                    help="check everything, print the planner's warnings and the run's size "
                         "(shots, estimated time from a short timed pilot, disk), and stop")
+    from .mission.preflight import LARGE_RUN_GB, LARGE_RUN_HOURS
+
     p.add_argument("--yes", action="store_true",
-                   help="start a large run (estimated above 2 h or 20 GB), which is otherwise "
-                        "refused")
+                   help=f"start a large run (estimated above {LARGE_RUN_HOURS:g} h or "
+                        f"{LARGE_RUN_GB:g} GB), which is otherwise refused")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("coverage", help="grid the footprints of results files: coverage, "

@@ -155,8 +155,15 @@ def _format_validation(err: ValidationError, source: str) -> str:
                 problems.append(msg)
             else:
                 problems.append(f"'{loc}'{also}: {msg} (got {value!r})")
+    return one_line_message(source, missing, problems)
+
+
+def one_line_message(source: str, missing: list[str], problems: list[str]) -> str:
+    """A validation error in one line: the source, the missing keys together, then the other
+    problems, ``; ``-separated, at most :data:`MAX_LISTED_PROBLEMS` of them."""
     if missing:
-        problems.insert(0, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+        problems = [f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}",
+                    *problems]
     more = len(problems) - MAX_LISTED_PROBLEMS
     listed = problems[:MAX_LISTED_PROBLEMS] + ([f"and {more} more"] if more > 0 else [])
     return f"{source}: {'; '.join(listed)}"

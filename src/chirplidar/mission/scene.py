@@ -59,7 +59,7 @@ from pydantic import (
 )
 
 from ..atmosphere import turbulence as _turbulence
-from ..config.loader import MAX_LISTED_PROBLEMS, ConfigError, parse_set
+from ..config.loader import ConfigError, one_line_message, parse_set
 from ..config.models import EFFECT_NAMES, StrictModel
 from ..geometry import terrain as _terrain
 from ..geometry.frames import (
@@ -580,11 +580,7 @@ def _format_errors(err: ValidationError, source: str) -> str:
         if e["type"] == "extra_forbidden":
             msg = _unknown_key(key)
         problems.append(f"{key}: {msg}")
-    if missing:
-        problems.insert(0, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
-    more = len(problems) - MAX_LISTED_PROBLEMS
-    listed = problems[:MAX_LISTED_PROBLEMS] + ([f"and {more} more"] if more > 0 else [])
-    return f"{source}: {'; '.join(listed)}"
+    return one_line_message(source, missing, problems)
 
 
 def _error(source: str, key: str, text: str) -> ConfigError:
