@@ -406,16 +406,32 @@ def test_binary_mission_file(tmp_path, capsys):
     ("platform.uav.line_spacing_m=5000", "wider than the survey polygon across the lines "
                                          "(2000 m): one line is flown"),
 ])
-def test_planner_warnings_in_the_dry_run(override, warning, capsys):
+def test_planner_warnings_in_the_dry_run(override, warning, tmp_path, capsys):
     import json
 
-    code, out, err = invoke(["run", str(GREENLAND), "--dry-run", "--json", "--set", override],
-                            capsys)
+    dry = ["run", str(GREENLAND), "--dry-run", "--json", "--out", str(tmp_path / "g.nc")]
+    code, out, err = invoke([*dry, "--set", override], capsys)
     assert code == 0, err
     report = json.loads(out)
     assert any(warning in w for w in report["planner_warnings"]), report["planner_warnings"]
-    assert json.loads(invoke(["run", str(GREENLAND), "--dry-run", "--json"],
-                             capsys)[1])["planner_warnings"] == []
+    assert json.loads(invoke(dry, capsys)[1])["planner_warnings"] == []
+
+
+def test_the_dry_run_checks_the_output(tmp_path, capsys):
+    (tmp_path / "d.nc").mkdir()
+    (tmp_path / "old.nc").write_text("")
+    dry = ["run", str(GREENLAND), "--dry-run", "--json", "--out"]
+    code, _, err = invoke([*dry, str(tmp_path / "d.nc")], capsys)
+    check_refusal(code, err, ["run"])
+    assert "is a directory; give a results file name" in err
+    code, _, err = invoke([*dry, str(tmp_path / "none" / "x.nc")], capsys)
+    check_refusal(code, err, ["run"])
+    assert "does not exist" in err
+    import json
+
+    code, out, _ = invoke([*dry, str(tmp_path / "old.nc")], capsys)
+    assert code == 0 and any("exists: the run needs --overwrite" in w
+                             for w in json.loads(out)["planner_warnings"])
 
 
 def _absolute_uav(tmp_path: Path, altitude_m: float) -> Path:

@@ -297,8 +297,16 @@ def cmd_run(args) -> int:
 def _dry_run(args) -> int:
     """``run --dry-run``: the checks, warnings and size of the run; nothing is written."""
     from .mission import preflight
-    from .mission.runner import preflight_run
+    from .mission.runner import check_output, default_output, preflight_run
 
+    notes = []
+    try:
+        out = check_output(args.out, args.mission, overwrite=args.overwrite)
+    except FileExistsError:   # the run would refuse it; the plan is still worth seeing
+        out = check_output(args.out, args.mission, overwrite=True)
+        notes.append(f"{out} exists: the run needs --overwrite to replace it")
+    if not out.parent.is_dir() and out != default_output(args.mission):
+        raise UsageError(f"--out {out}: directory {out.parent} does not exist")
     with warnings.catch_warnings():   # the report lists them
         warnings.simplefilter("ignore", preflight.PlannerWarning)
         config, scene, plan, estimate = preflight_run(
@@ -307,7 +315,7 @@ def _dry_run(args) -> int:
     report = {"mission": str(args.mission), "tier": config.survey.tier,
               "platform": config.platform.kind, "scene": str(scene.path), **estimate.as_dict(),
               "large": estimate.large,
-              "planner_warnings": preflight.planner_warnings(config, scene, plan)}
+              "planner_warnings": preflight.planner_warnings(config, scene, plan) + notes}
     if args.json:
         print(_dump_json({k: _json_number(v) for k, v in report.items()}))
     else:
@@ -1116,7 +1124,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"chirplidar {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("chirplidar: interrupted", file=sys.stderr)
+        hint = ""
+        if args.command == "run" and not getattr(args, "dry_run", False):
+            from .mission.runner import chunk_dir_for, default_output
+
+            chunks = chunk_dir_for(Path(args.out) if args.out else default_output(args.mission))
+            if chunks.is_dir():
+                hint = (f"; the finished chunks are kept in {chunks}: run the same command "
+                        "with --resume to finish")
+        print(f"chirplidar {args.command}: interrupted{hint}", file=sys.stderr)
         return 130
     except Exception as exc:   # faults in one line; bugs keep their traceback
         fault = _fault_line(args.command, exc)

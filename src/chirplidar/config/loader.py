@@ -191,6 +191,8 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     ``[platform.X]`` section here replaces the parent's other platform sections.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a directory, not a mission file")
     try:
         text = path.read_text()
     except OSError as exc:
@@ -212,6 +214,9 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     base_path = (path.parent / parent).resolve()
     if base_path in _seen:
         raise ConfigError(f"{path}: 'extends' loops back to {base_path}")
+    if not base_path.is_file():
+        raise ConfigError(f"{path}: extends = {parent!r}: {base_path} does not exist (the path "
+                          "is relative to this file)")
     base = read_mission_flat(base_path, _seen + (base_path,))
     # File paths are relative to the file that names them: re-anchor the parent's to this one.
     for key in PATH_KEYS:

@@ -45,6 +45,9 @@ LARGEST_SI = 1e100
 #: dB keys whose losses MAX_DB does not bound, only their gains: a path loss may be anything (a
 #: survey shot over specular water far off its glint loses 500 dB: no signal, as inf is).
 ANY_LOSS_DB = frozenset({"extra_attenuation_db"})
+#: Beams of a custom pattern: every shot casts each beam's sub-rays (ICESat-2 has 6, a
+#: multi-beam scanner a few dozen).
+MAX_BEAMS = 64
 #: A chirp's frequency ramp must span at least this many samples to be a chirp at all.
 MIN_RAMP_SAMPLES = 4
 
@@ -53,6 +56,12 @@ def _accepts_bool(annotation) -> bool:
     if annotation is bool:
         return True
     return any(_accepts_bool(a) for a in typing.get_args(annotation))
+
+
+def _only_numbers(annotation) -> bool:
+    """Whether a field takes numbers only (int, float, optional or not): no text."""
+    args = [a for a in (typing.get_args(annotation) or (annotation,)) if a is not type(None)]
+    return bool(args) and all(a in (int, float) for a in args)
 
 
 class StrictModel(BaseModel):
@@ -66,9 +75,12 @@ class StrictModel(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _no_bool_for_a_number(cls, value, info):
-        if isinstance(value, bool) and info.field_name in cls.model_fields and \
-                not _accepts_bool(cls.model_fields[info.field_name].annotation):
+        annotation = cls.model_fields[info.field_name].annotation \
+            if info.field_name in cls.model_fields else None
+        if isinstance(value, bool) and annotation is not None and not _accepts_bool(annotation):
             raise ValueError("expected a number or text, not true or false")
+        if isinstance(value, str) and annotation is not None and _only_numbers(annotation):
+            raise ValueError("expected a number, not text (no quotes around numbers)")
         if isinstance(value, (int, float)) and not isinstance(value, bool) and \
                 math.isfinite(value):
             loss_only = info.field_name in ANY_LOSS_DB   # any loss, but not any gain
@@ -620,8 +632,10 @@ class Beams(_Model):
     cone_half_angle_deg: float | None = Field(None, gt=0, lt=60, description="conical: "
                                               "off-nadir angle")
     scan_rate_deg_s: float | None = Field(None, description="conical: azimuth rate")
-    off_nadir_deg: tuple[float, ...] | None = Field(None, description="custom: per beam")
-    azimuth_deg: tuple[float, ...] | None = Field(None, description="custom: per beam, from "
+    off_nadir_deg: tuple[float, ...] | None = Field(None, max_length=MAX_BEAMS,
+                                                    description="custom: per beam")
+    azimuth_deg: tuple[float, ...] | None = Field(None, max_length=MAX_BEAMS,
+                                                  description="custom: per beam, from "
                                                   "the flight direction towards the right")
 
     @model_validator(mode="after")

@@ -1,8 +1,9 @@
 """Before a run flies: what a planner should be warned about, and how big the run is.
 
 :func:`planner_warnings` looks at a checked configuration and its scene for values that are
-legal but implausible (a power typed in the wrong unit, a platform that cannot point, a line
-spacing no line fits, a path that skims the terrain). They are printed before any work and
+legal but implausible (a power typed in the wrong unit, a platform that cannot point, a flight
+longer than the platform's endurance, a line spacing no line fits, a path that skims the
+terrain). They are printed before any work and
 kept in the results file's ``planner_warnings`` attribute.
 
 :func:`run_estimate` sizes the run: shots, beam-shots, chunks, the disk the results take and the
@@ -24,6 +25,10 @@ MAX_PLAUSIBLE_LASER_W = 5.0
 #: Pointing jitter above this (per axis, rms) is more than any survey platform's: small-UAV
 #: gimbals hold ~1e-4 rad, aircraft INS-stabilized mounts ~1e-5, ICESat-2 ~1e-5 rad.
 MAX_PLAUSIBLE_JITTER_RAD = 1e-2
+#: Survey UAVs: fixed-wing ones cruise at 15-35 m/s and stay below a few km (a long-endurance
+#: fixed-wing UAV at most ~60 m/s and ~6 km); more is probably a unit typed wrong.
+MAX_PLAUSIBLE_UAV_SPEED_MPS = 60.0
+MAX_PLAUSIBLE_UAV_ALTITUDE_M = 6000.0
 #: Flying lower than this above the terrain anywhere on the path leaves no margin for the
 #: terrain model's error (a DEM's metre-level error, a synthetic surface's features).
 MIN_CLEARANCE_M = 10.0
@@ -58,8 +63,32 @@ def planner_warnings(config, scene, plan) -> list[str]:
     if config.waveform.vpp_v <= 0:
         out.append("waveform.vpp_v (chrp.Vpp) = 0: no chirp drives the modulator, so there is "
                    "no beat; every shot will be below the detection threshold")
+    out += _flight(config, plan)
     out += _line_spacing(config, scene)
     out += _clearance(config, scene, plan)
+    return out
+
+
+def _flight(config, plan) -> list[str]:
+    """A flight longer than the platform's endurance; a UAV faster or higher than any."""
+    from .survey import _flight_section
+
+    sec = _flight_section(config)
+    if sec is None:
+        return []
+    out = []
+    key = f"platform.{config.platform.kind}"
+    duration = getattr(plan.path, "duration_s", None)
+    if sec.endurance_s is not None and duration is not None and duration > sec.endurance_s:
+        out.append(f"the path takes {duration:.0f} s, {duration / sec.endurance_s:.3g} times "
+                   f"{key}.endurance_s = {sec.endurance_s:g} s: more than one flight")
+    if config.platform.kind == "uav":
+        if sec.speed_mps > MAX_PLAUSIBLE_UAV_SPEED_MPS:
+            out.append(f"{key}.speed_mps = {sec.speed_mps:g} m/s is faster than any survey UAV "
+                       f"(> {MAX_PLAUSIBLE_UAV_SPEED_MPS:g} m/s)")
+        if sec.altitude_m > MAX_PLAUSIBLE_UAV_ALTITUDE_M:
+            out.append(f"{key}.altitude_m = {sec.altitude_m:g} m is higher than any survey UAV "
+                       f"flies (> {MAX_PLAUSIBLE_UAV_ALTITUDE_M:g} m): is it in feet or km?")
     return out
 
 

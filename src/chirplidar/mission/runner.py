@@ -192,6 +192,8 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
     from .scene import load_scene
 
     mission_path = Path(mission_path)
+    if mission_path.is_dir():
+        raise ConfigError(f"{mission_path}: is a directory, not a mission file")
     if not mission_path.is_file():
         raise ConfigError(f"{mission_path}: mission file does not exist")
     config = load_mission(mission_path, overrides)
@@ -1178,13 +1180,7 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
     """
     t0 = time.perf_counter()
     _check_parallel_args(workers, scheduler)
-    out = Path(out) if out is not None else default_output(mission_path)
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} exists: pass --overwrite to replace it (nothing was run)")
-    if out.suffix != ".nc":
-        raise ConfigError(f"--out {out}: the results file must end in .nc")
-    if out.is_dir():
-        raise ConfigError(f"--out {out}: is a directory; give a results file name (*.nc)")
+    out = check_output(out, mission_path, overwrite=overwrite)
     if out == default_output(mission_path):
         out.parent.mkdir(parents=True, exist_ok=True)   # outputs/: made for the default
     if out.parent.is_dir():
@@ -1198,6 +1194,25 @@ def run_mission(mission_path, *, overrides=(), tier=None, out=None, seed=None,
                        overwrite=overwrite, progress=progress, cache_dir=cache_dir,
                        date_created=date_created, workers=workers, scheduler=scheduler,
                        resume=resume, yes=yes, t0=t0)
+
+
+def check_output(out, mission_path, *, overwrite: bool) -> Path:
+    """The results path of a run (``out``, or the mission's default), refused before any work
+    when it cannot be one: a directory, an existing file without ``overwrite`` (FileExistsError),
+    not ``*.nc``, under a file, or in a folder this process cannot write in (an absent folder
+    is reported when the run starts: the default ``outputs/`` is made then)."""
+    out = Path(out) if out is not None else default_output(mission_path)
+    if out.is_dir():
+        raise ConfigError(f"--out {out}: is a directory; give a results file name (*.nc)")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists: pass --overwrite to replace it (nothing was run)")
+    if out.suffix != ".nc":
+        raise ConfigError(f"--out {out}: the results file must end in .nc")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: {out.parent} is a file, not a directory")
+    if out.parent.is_dir():
+        _check_writable(out.parent, f"--out {out}")
+    return out
 
 
 LOCK_SUFFIX = ".lock"

@@ -17,7 +17,6 @@ Conventions
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -299,11 +298,6 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
                               f"than a run holds ({MAX_SURVEY_SHOTS:.0e}): split it into "
                               "several runs")
         t = shot_times(sv.start_s, stop, sv.prf_hz)
-    endurance = getattr(_flight_section(config), "endurance_s", None)
-    if endurance is not None and path.duration_s > endurance:
-        warnings.warn(f"{source}: the path takes {path.duration_s:.0f} s, longer than "
-                      f"platform.{config.platform.kind}.endurance_s = {endurance:g} s",
-                      stacklevel=2)
     z0, z1 = scene.height_range_m
     margin = 1.0 + 1e-3 * (z1 - z0)
     return SurveyPlan(path=path, beams=beams, attitude=attitude,
