@@ -483,3 +483,15 @@ def test_a_large_run_needs_yes(tmp_path, capsys, monkeypatch):
     assert "a large run (159 000 shots x 1 beam in 8 chunks: about" in err
     assert "pass --yes to start it" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_planner_warnings_are_kept_in_the_results_file(tmp_path, capsys):
+    """Each chunk's file carries the run's warnings, found once before any work."""
+    from chirplidar.mission.results import read_netcdf
+
+    out = tmp_path / "w.nc"
+    code, _, err = invoke(["run", str(GREENLAND), "--out", str(out), "--no-progress", "--set",
+                           "laser.power_w=8.58", "survey.stop_s=3", "survey.chunk_shots=100"],
+                          capsys)
+    assert code == 0, err
+    assert "laser.power_w = 8.58 W is more than" in read_netcdf(out).attrs["planner_warnings"]

@@ -544,11 +544,38 @@ def test_output_that_is_a_directory_is_refused_before_any_work(small, tmp_path, 
     assert not chunk_dir_for(target).exists()
 
 
+_FLAT_AIR = ('[atmosphere]\ncn2_profile = "none"\nextinction_per_m = 0.0\n'
+             'scale_height_m = 1200.0\n')
+
+
+def _resume_refused_after_terrain_change(tmp_path, monkeypatch, scene_text, terrain: Path,
+                                         write_terrain):
+    """A UAV run over ``scene_text`` (its terrain file ``terrain`` written by
+    ``write_terrain(height)``) stopped after two chunks; the file rewritten at another height
+    makes --resume refuse, naming it; the same heights again let it finish."""
+    from conftest import write_uav_mission
+
+    write_terrain(100.0)
+    scene = tmp_path / "terrain_scene.toml"
+    scene.write_text(scene_text + _FLAT_AIR)
+    mission = write_uav_mission(tmp_path, scene, "terrain_uav", altitude=600.0,
+                                waypoints="[[-800.0, 0.0], [800.0, 0.0]]", stop="10.0",
+                                extra="chunk_shots = 50")
+    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
+    out, _ = _interrupted(small, tmp_path, monkeypatch, after=2)
+    write_terrain(110.0)                               # the file changes on disk
+    with pytest.raises(ConfigError,
+                       match=rf"terrain file\(s\) {re.escape(str(terrain))} changed"):
+        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    write_terrain(100.0)                               # the same heights again: resumes
+    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
+    assert res.summary["shots"] == 200
+
+
 def test_resume_refuses_a_changed_dem(tmp_path, monkeypatch):
     """Issue 15: the manifest holds the SHA-256 of the terrain's DEM; a DEM changed between a
     stopped run and --resume is refused, naming the file."""
     rasterio = pytest.importorskip("rasterio")
-    from conftest import write_uav_mission
     from rasterio.transform import Affine
 
     from chirplidar.geometry import frames
@@ -563,29 +590,14 @@ def test_resume_refuses_a_changed_dem(tmp_path, monkeypatch):
                                             float(y0) + 1000.0)) as dst:
             dst.write(np.full((200, 200), height, np.float32), 1)
 
-    write_dem(100.0)
-    scene = tmp_path / "dem_scene.toml"
-    scene.write_text('name = "dem"\nepsg = 3413\neffects = []\n[terrain]\nsource = "dem"\n'
-                     '[terrain.dem]\npath = "dem.tif"\nmaterial = "snow"\n[atmosphere]\n'
-                     'cn2_profile = "none"\nextinction_per_m = 0.0\nscale_height_m = 1200.0\n')
-    mission = write_uav_mission(tmp_path, scene, "dem_uav", altitude=600.0,
-                                waypoints="[[-800.0, 0.0], [800.0, 0.0]]", stop="10.0",
-                                extra="chunk_shots = 50")
-    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
-    out, chunks = _interrupted(small, tmp_path, monkeypatch, after=2)
-    write_dem(110.0)                                   # the DEM changes on disk
-    with pytest.raises(ConfigError, match=rf"terrain file\(s\) {re.escape(str(dem))} changed"):
-        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
-    write_dem(100.0)                                   # the same heights again: resumes
-    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
-    assert res.summary["shots"] == 200
+    _resume_refused_after_terrain_change(
+        tmp_path, monkeypatch, 'name = "dem"\nepsg = 3413\neffects = []\n[terrain]\n'
+        'source = "dem"\n[terrain.dem]\npath = "dem.tif"\nmaterial = "snow"\n', dem, write_dem)
 
 
 def test_resume_refuses_a_changed_mesh(tmp_path, monkeypatch):
     """Issue 15: as for a DEM, a terrain mesh file changed between a stopped run and --resume is
     refused, naming the file."""
-    from conftest import write_uav_mission
-
     mesh = tmp_path / "plane.obj"
 
     def write_mesh(height):   # a 3 km square at one height, metres from the scene centre
@@ -593,24 +605,10 @@ def test_resume_refuses_a_changed_mesh(tmp_path, monkeypatch):
                                 ((-1500, -1500), (1500, -1500), (1500, 1500), (-1500, 1500)))
                         + "f 1 2 3\nf 1 3 4\n")
 
-    write_mesh(100.0)
-    scene = tmp_path / "mesh_scene.toml"
-    scene.write_text('name = "mesh"\nepsg = 3413\neffects = []\n[terrain]\nsource = "mesh"\n'
-                     'center_lat_deg = 69.0\ncenter_lon_deg = -49.0\n[terrain.mesh]\n'
-                     'path = "plane.obj"\ncoordinates = "scene_centre"\nmaterial = "snow"\n'
-                     '[atmosphere]\ncn2_profile = "none"\nextinction_per_m = 0.0\n'
-                     'scale_height_m = 1200.0\n')
-    mission = write_uav_mission(tmp_path, scene, "mesh_uav", altitude=600.0,
-                                waypoints="[[-800.0, 0.0], [800.0, 0.0]]", stop="10.0",
-                                extra="chunk_shots = 50")
-    small = SimpleNamespace(mission=mission, cache=tmp_path / "cache")
-    out, chunks = _interrupted(small, tmp_path, monkeypatch, after=2)
-    write_mesh(110.0)                                  # the mesh changes on disk
-    with pytest.raises(ConfigError, match=rf"terrain file\(s\) {re.escape(str(mesh))} changed"):
-        run_mission(mission, out=out, cache_dir=small.cache, resume=True)
-    write_mesh(100.0)                                  # the same surface again: resumes
-    res = run_mission(mission, out=out, cache_dir=small.cache, resume=True)
-    assert res.summary["shots"] == 200
+    _resume_refused_after_terrain_change(
+        tmp_path, monkeypatch, 'name = "mesh"\nepsg = 3413\neffects = []\n[terrain]\n'
+        'source = "mesh"\ncenter_lat_deg = 69.0\ncenter_lon_deg = -49.0\n[terrain.mesh]\n'
+        'path = "plane.obj"\ncoordinates = "scene_centre"\nmaterial = "snow"\n', mesh, write_mesh)
 
 
 def test_the_results_file_is_read_back_before_the_chunks_go(small, tmp_path):

@@ -309,13 +309,13 @@ def _dry_run(args) -> int:
         raise UsageError(f"--out {out}: directory {out.parent} does not exist")
     with warnings.catch_warnings():   # the report lists them
         warnings.simplefilter("ignore", preflight.PlannerWarning)
-        config, scene, plan, estimate = preflight_run(
+        config, scene, plan, planner_warnings, estimate = preflight_run(
             args.mission, overrides=args.set or [], tier=args.tier, seed=args.seed,
             cores=args.workers or 1)
     report = {"mission": str(args.mission), "tier": config.survey.tier,
               "platform": config.platform.kind, "scene": str(scene.path), **estimate.as_dict(),
               "large": estimate.large,
-              "planner_warnings": preflight.planner_warnings(config, scene, plan) + notes}
+              "planner_warnings": [*planner_warnings, *notes]}
     if args.json:
         print(_dump_json({k: _json_number(v) for k, v in report.items()}))
     else:

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .survey import _flight_section, chunk_geometry, survey_polygon_xy
+
 #: A CW chirped lidar's laser above this is suspicious: the thesis's sources are a few mW
 #: (8.58 mW, Table 4.4) and a fibre amplifier gives a few W; more is probably mW typed as W.
 MAX_PLAUSIBLE_LASER_W = 5.0
@@ -71,8 +73,6 @@ def planner_warnings(config, scene, plan) -> list[str]:
 
 def _flight(config, plan) -> list[str]:
     """A flight longer than the platform's endurance; a UAV faster or higher than any."""
-    from .survey import _flight_section
-
     sec = _flight_section(config)
     if sec is None:
         return []
@@ -93,8 +93,6 @@ def _flight(config, plan) -> list[str]:
 
 
 def _line_spacing(config, scene) -> list[str]:
-    from .survey import _flight_section, survey_polygon_xy
-
     polygon = survey_polygon_xy(config, scene)
     if polygon is None:
         return []
@@ -113,8 +111,6 @@ def _line_spacing(config, scene) -> list[str]:
 
 def _clearance(config, scene, plan) -> list[str]:
     """The path's lowest height above the terrain, for platforms flown at an absolute height."""
-    from .survey import _flight_section
-
     sec = _flight_section(config)
     if sec is None or getattr(sec, "altitude_mode", "absolute") != "absolute":
         return []
@@ -182,8 +178,7 @@ def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEs
     whole, a larger one on ``PILOT_SHOTS / 4`` and ``PILOT_SHOTS`` shots, whose difference
     gives the cost per shot. The pilot has its own seed: the run's outputs do not depend on it.
     """
-    from .results import SCHEMA
-    from .survey import chunk_geometry
+    from .results import BYTES_PER_BEAM_SHOT
 
     t_first = plan.chunk_times(0)
     seq = np.random.SeedSequence(0)
@@ -212,7 +207,7 @@ def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEs
     return RunEstimate(shots=plan.n_shots, beams=beams, chunks=plan.n_chunks,
                        pilot_shots=pilot, seconds_per_shot=per_shot, seconds_per_chunk=per_chunk,
                        cores=max(int(cores), 1),
-                       disk_bytes=int(plan.n_shots * beams * 8 * len(SCHEMA)))
+                       disk_bytes=int(plan.n_shots * beams * BYTES_PER_BEAM_SHOT))
 
 
 def _duration(seconds: float) -> str:

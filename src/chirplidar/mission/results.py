@@ -159,6 +159,9 @@ SCHEMA: tuple[VarSpec, ...] = (
     VarSpec("surface_type", "int16", "1", "surface material at the footprint"),
 )
 SCHEMA_BY_NAME: dict[str, VarSpec] = {s.name: s for s in SCHEMA}
+#: Bytes of one shot of one beam held in memory (every variable as float64): the bound of a
+#: chunk's memory and of a results file before compression.
+BYTES_PER_BEAM_SHOT = 8 * len(SCHEMA)
 _DERIVED = {"time"}  # computed from delta_time, never passed in
 
 

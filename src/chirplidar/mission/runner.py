@@ -90,9 +90,9 @@ from ..config.loader import (ConfigError, config_flat, config_with, load_mission
                              scene_overrides)
 from . import measure, preflight
 from .results import (
+    BYTES_PER_BEAM_SHOT,
     DETECTED_FLAG_VALUES,
     NETCDF_LOCK,
-    SCHEMA,
     ChunkWriter,
     build_dataset,
     read_netcdf,
@@ -245,18 +245,19 @@ def preflight_run(mission_path, *, overrides=(), tier=None, seed=None, cache_dir
     """What a run checks before any work, and what ``chirplidar run --dry-run`` shows:
     :func:`prepare`, the planner's warnings (issued as :class:`.preflight.PlannerWarning`) and,
     if ``estimate``, the run's size (:func:`.preflight.run_estimate`, else None). Returns
-    (config, scene, plan, estimate)."""
+    (config, scene, plan, planner warnings, estimate)."""
     config, scene, plan = prepare(mission_path, overrides=overrides, tier=tier, seed=seed,
                                   cache_dir=cache_dir)
     sv = config.survey
     if plan.n_shots == 0:
         raise ConfigError(f"{mission_path}: survey span {sv.start_s:g}..{sv.stop_s} s at "
                           f"{sv.prf_hz:g} Hz holds no shot")
-    for text in preflight.planner_warnings(config, scene, plan):
+    notes = tuple(preflight.planner_warnings(config, scene, plan))
+    for text in notes:
         warnings.warn(text, preflight.PlannerWarning, stacklevel=2)
     size = (preflight.run_estimate(config, scene, plan, cores=cores, measure_chunk=_measure)
             if estimate else None)
-    return config, scene, plan, size
+    return config, scene, plan, notes, size
 
 
 def _measure(config, scene, geom, seq, progress=None) -> dict:
@@ -368,7 +369,8 @@ class ChunkJob:
     ``mission_path``, ``cache_dir`` and ``chunk_dir`` are absolute; ``mission_label`` is the
     mission path as the user gave it (messages and the ``mission_file`` attribute). The two
     hashes pin the resolved configuration and the scene text: a process that prepares the
-    mission itself checks that it got the same run.
+    mission itself checks that it got the same run. ``planner_warnings``: the run's
+    (:func:`.preflight.planner_warnings`, found once before any work), for every chunk's file.
     """
 
     mission_path: str
@@ -381,6 +383,7 @@ class ChunkJob:
     date_created: str
     configuration_sha256: str
     scene_sha256: str
+    planner_warnings: tuple = ()
 
 
 _PREPARED: OrderedDict = OrderedDict()   # per process: job key -> (config, scene, plan)
@@ -444,7 +447,7 @@ def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
     meas = _measure(config, scene, geom, seq, progress)
     per_shot = {k: np.ascontiguousarray(v.T) for k, v in _per_shot(config, geom, meas).items()}
     ds = results_dataset(per_shot, config, scene, job.mission_label, job.date_created,
-                         preflight.planner_warnings(config, scene, plan))
+                         job.planner_warnings)
     # Compressed here, in the results file's HDF5 chunks: the merge copies them as they are.
     # The directory is not created here: a straggler of a run that is over cannot leave a
     # manifest-less chunk.
@@ -1297,7 +1300,7 @@ def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, pr
             "--overwrite to discard it (nothing was run)")
     if chunk_dir.is_dir():
         _check_writable(chunk_dir, "--resume" if resume else "--overwrite")
-    config, scene, plan, estimate = preflight_run(
+    config, scene, plan, notes, estimate = preflight_run(
         mission_path, overrides=overrides, tier=tier, seed=seed, cache_dir=cache_dir,
         cores=workers or 1, estimate=progress or not yes)   # its pilot costs a second
     if progress:
@@ -1357,7 +1360,7 @@ def _run_locked(mission_path, out: Path, *, overrides, tier, seed, overwrite, pr
         cache_dir=None if cache_dir is None else str(Path(cache_dir).resolve()),
         chunk_dir=str(chunk_dir.resolve()), date_created=date_created,
         configuration_sha256=manifest["configuration_sha256"],
-        scene_sha256=manifest["scene_sha256"])
+        scene_sha256=manifest["scene_sha256"], planner_warnings=notes)
     _remember(job, (config, scene, plan))
     try:
         return _execute(job, config, plan, out, chunk_dir, overwrite=overwrite,
@@ -1441,7 +1444,7 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
         bar = tqdm(total=plan.n_shots * n_beams, unit="shot", desc=f"run {sv.tier}",
                    leave=False, initial=sum(plan.chunk_times(i).size for i in done) * n_beams)
     t1 = time.perf_counter()
-    one_chunk = plan.chunk_shots * plan.beams.n_beams * 8 * len(SCHEMA)   # bytes, float64
+    one_chunk = plan.chunk_shots * plan.beams.n_beams * BYTES_PER_BEAM_SHOT
     summary_pass = _SummaryPass(plan.beams.n_beams, budget_bytes=one_chunk)
     try:
         merge = writer.start_merge(
