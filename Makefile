@@ -3,15 +3,17 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# The optional-dependency extras make install puts in the virtualenv (pyproject.toml).
+EXTRAS := test,docs
 
-.PHONY: install demo thesis-demo test test-slow bench clean
+.PHONY: install demo thesis-demo test test-slow bench docs clean
 
 install: $(STAMP)
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[$(EXTRAS)]'
 	touch $(STAMP)
 
 # The main job: a UAV survey over a generated Greenland outlet glacier, its 3-D view, and its
@@ -42,5 +44,9 @@ bench: install
 	$(BIN)/chirplidar bench --what accuracy --out outputs
 	$(BIN)/chirplidar bench --what coverage
 
+# The documentation site into site/ (mkdocs.yml); warnings are errors.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build src/*.egg-info
+	rm -rf $(VENV) build site src/*.egg-info
