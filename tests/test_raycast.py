@@ -13,12 +13,8 @@ from chirplidar.geometry.raycast import (
     footprint_returns,
     footprint_subrays,
 )
-from chirplidar.geometry.terrain import (
-    MATERIAL_CODES,
-    Terrain,
-    flat_plane,
-    sloped_plane,
-)
+from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
+from chirplidar.geometry.terrain import MATERIAL_CODES, Terrain
 
 
 def _dir(off_nadir_rad, azimuth_rad=0.0):

@@ -55,6 +55,14 @@ def real_array(name: str, value) -> np.ndarray:
     return arr
 
 
+def time_array(name: str, value) -> np.ndarray:
+    """A finite 1-D real array of times (s) as float64."""
+    t = real_array(name, value)
+    if t.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array of times, got shape {t.shape}")
+    return t
+
+
 def non_negative_array(name: str, value) -> np.ndarray:
     arr = real_array(name, value)
     if np.any(arr < 0.0):

@@ -23,8 +23,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
-from ._checks import positive, real_scalar
-from .turbulence import _cn2_array, _length_array, _scalar_or_array, _wavenumber, rytov_variance
+from ._checks import (
+    cn2_array,
+    path_length_array,
+    positive,
+    real_scalar,
+    scalar_or_array,
+    wavenumber,
+)
+from .turbulence import rytov_variance
 
 
 def _focus(focus_m) -> float:
@@ -42,15 +49,15 @@ def gaussian_beam_parameters(w0_m: float, wavelength_m: float, path_length_m, *,
     scalar ``path_length_m``, else arrays of its shape).
     """
     w0 = positive("w0_m", w0_m)
-    k = _wavenumber(wavelength_m)
-    length = _length_array(path_length_m)
+    k = wavenumber(wavelength_m)
+    length = path_length_array(path_length_m)
     f0 = _focus(focus_m)
     theta0 = 1.0 - length / f0
     lambda0 = 2.0 * length / (k * w0 * w0)
     q = theta0 ** 2 + lambda0 ** 2
-    return {"theta0": _scalar_or_array(theta0), "lambda0": _scalar_or_array(lambda0),
-            "theta": _scalar_or_array(theta0 / q), "lambda_": _scalar_or_array(lambda0 / q),
-            "w_m": _scalar_or_array(w0 * np.sqrt(q))}
+    return {"theta0": scalar_or_array(theta0), "lambda0": scalar_or_array(lambda0),
+            "theta": scalar_or_array(theta0 / q), "lambda_": scalar_or_array(lambda0 / q),
+            "w_m": scalar_or_array(w0 * np.sqrt(q))}
 
 
 def long_term_beam_radius(w0_m: float, wavelength_m: float, path_length_m, cn2, *,
@@ -68,7 +75,7 @@ def long_term_beam_radius(w0_m: float, wavelength_m: float, path_length_m, cn2, 
                          f"path_length_m)")
     w = np.asarray(p["w_m"])
     lam = np.asarray(p["lambda_"])
-    return _scalar_or_array(w * np.sqrt(1.0 + 1.33 * sigma2 * lam ** (5.0 / 6.0)))
+    return scalar_or_array(w * np.sqrt(1.0 + 1.33 * sigma2 * lam ** (5.0 / 6.0)))
 
 
 def beam_wander_variance(w0_m: float, wavelength_m: float, path_length_m, cn2, *,
@@ -80,9 +87,9 @@ def beam_wander_variance(w0_m: float, wavelength_m: float, path_length_m, cn2, *
     Float for scalar inputs, else array (broadcast).
     """
     w0 = positive("w0_m", w0_m)
-    _wavenumber(wavelength_m)
-    length = _length_array(path_length_m)
-    c = _cn2_array(cn2)
+    wavenumber(wavelength_m)
+    length = path_length_array(path_length_m)
+    c = cn2_array(cn2)
     theta0 = 1.0 - length / _focus(focus_m)
     hyp = special.hyp2f1(1.0 / 3.0, 1.0, 4.0, 1.0 - np.abs(theta0))
-    return _scalar_or_array(2.42 * c * length ** 3 * w0 ** (-1.0 / 3.0) * hyp)
+    return scalar_or_array(2.42 * c * length ** 3 * w0 ** (-1.0 / 3.0) * hyp)

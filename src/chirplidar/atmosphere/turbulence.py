@@ -23,7 +23,15 @@ from collections.abc import Callable
 import numpy as np
 from scipy.integrate import quad
 
-from ._checks import non_negative, positive, real_scalar, wave_kind
+from ._checks import (
+    cn2_array,
+    non_negative,
+    path_length_array,
+    real_scalar,
+    scalar_or_array,
+    wave_kind,
+    wavenumber,
+)
 
 #: HV-5/7 ground-layer coefficient A (m^-2/3) and rms upper-wind speed (m/s), A&P Ch. 12.
 HV57_GROUND_CN2 = 1.7e-14
@@ -86,30 +94,6 @@ def constant_profile(cn2: float) -> Cn2Profile:
 
 # --- constant-Cn^2 closed forms -------------------------------------------------------------------
 
-def _wavenumber(wavelength_m) -> float:
-    return 2.0 * np.pi / positive("wavelength_m", wavelength_m)
-
-
-def _scalar_or_array(x):
-    x = np.asarray(x, dtype=float)
-    return float(x) if x.ndim == 0 else x
-
-
-def _cn2_array(cn2):
-    c = np.asarray(cn2, dtype=float)
-    if not np.all(np.isfinite(c)) or np.any(c <= 0.0):
-        raise ValueError("cn2 must be finite and > 0 m^-2/3 (no turbulence means r0 = inf; "
-                         "skip the turbulence effect instead)")
-    return c
-
-
-def _length_array(path_length_m):
-    length = np.asarray(path_length_m, dtype=float)
-    if not np.all(np.isfinite(length)) or np.any(length <= 0.0):
-        raise ValueError("path_length_m must be finite and > 0 m")
-    return length
-
-
 def fried_parameter(cn2, wavelength_m: float, path_length_m, wave: str = "plane"):
     """Fried parameter r0 (m) of a path with constant Cn^2 (Fried 1966; A&P Ch. 6).
 
@@ -127,15 +111,15 @@ def fried_parameter(cn2, wavelength_m: float, path_length_m, wave: str = "plane"
     -------
     r0 in metres: float for scalar inputs, else float64 array of the broadcast shape.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     weight = 1.0 if wave_kind(wave) == "plane" else SPHERICAL_WEIGHT
-    c, length = _cn2_array(cn2), _length_array(path_length_m)
-    return _scalar_or_array((FRIED_COEFF * k * k * c * length * weight) ** (-3.0 / 5.0))
+    c, length = cn2_array(cn2), path_length_array(path_length_m)
+    return scalar_or_array((FRIED_COEFF * k * k * c * length * weight) ** (-3.0 / 5.0))
 
 
 def coherence_radius(r0_m):
     """Spatial coherence radius rho0 = r0 / 2.1 (m) (A&P Ch. 6). Float or array like ``r0_m``."""
-    return _scalar_or_array(np.asarray(r0_m, dtype=float) / R0_OVER_RHO0)
+    return scalar_or_array(np.asarray(r0_m, dtype=float) / R0_OVER_RHO0)
 
 
 def rytov_variance(cn2, wavelength_m: float, path_length_m, wave: str = "plane"):
@@ -146,10 +130,10 @@ def rytov_variance(cn2, wavelength_m: float, path_length_m, wave: str = "plane")
 
     Weak fluctuations when the value is below 1. Float for scalar inputs, else array.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     coeff = 1.23 if wave_kind(wave) == "plane" else 0.5
-    c, length = _cn2_array(cn2), _length_array(path_length_m)
-    return _scalar_or_array(coeff * c * k ** (7.0 / 6.0) * length ** (11.0 / 6.0))
+    c, length = cn2_array(cn2), path_length_array(path_length_m)
+    return scalar_or_array(coeff * c * k ** (7.0 / 6.0) * length ** (11.0 / 6.0))
 
 
 # --- slant paths through a profile ----------------------------------------------------------------
@@ -281,7 +265,7 @@ def fried_parameter_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
     -------
     r0 in metres (float); numpy.inf if the path carries no turbulence.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     spherical = wave_kind(wave) == "spherical"
     weight = ((lambda s, length: (s / length) ** (5.0 / 3.0)) if spherical
               else (lambda s, length: 1.0))
@@ -305,7 +289,7 @@ def rytov_variance_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
     (~0.5, spherical) times Cn2 k^(7/6) L^(11/6), i.e. ``rytov_variance``. Arguments as in
     ``fried_parameter_profile``.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     spherical = wave_kind(wave) == "spherical"
     if spherical:
         def weight(s, length):
@@ -328,7 +312,7 @@ def isoplanatic_angle(cn2_profile: Cn2Profile, wavelength_m: float, *, receiver_
     L - s being the distance of the turbulence from the receiver. HV-5/7 at 0.5 um, ground to space
     at zenith: about 7 urad (the "7" of HV-5/7).
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     total, _ = _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m,
                               zenith_angle_rad, earth_radius_m,
                               lambda s, length: max(length - s, 0.0) ** (5.0 / 3.0))

@@ -1,7 +1,8 @@
 """Geometry: terrain meshes and DEMs, synthetic ice sheets, ray casting and beam footprints.
 
-Frames and projections (ECEF, geodetic, EPSG:3413/3031 grids) are in :mod:`.frames`; platforms,
-paths, orbits and beams in :mod:`.platform`.
+Frames and projections (ECEF, geodetic, EPSG:3413/3031 grids) are in :mod:`.frames`; flight
+paths in :mod:`.paths`, orbits in :mod:`.orbits`, attitude, beams and per-shot geometry in
+:mod:`.pointing`; generated terrain in :mod:`.synthetic_terrain`.
 """
 
 from .raycast import (
@@ -14,17 +15,19 @@ from .raycast import (
     footprint_returns,
     footprint_subrays,
 )
-from .terrain import (
-    MATERIAL_CODES,
-    MATERIAL_NAMES,
+from .synthetic_terrain import (
     SYNTHETIC_FEATURES,
-    Terrain,
     flat_plane,
-    material_code,
-    material_name,
     sloped_plane,
     synthetic_ice_sheet,
     vialov_height,
+)
+from .terrain import (
+    MATERIAL_CODES,
+    MATERIAL_NAMES,
+    Terrain,
+    material_code,
+    material_name,
 )
 
 __all__ = [

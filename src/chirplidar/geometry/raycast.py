@@ -33,8 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from trimesh.ray import ray_triangle as _ray_triangle
 
-from .terrain import Terrain, flat_plane
+from .synthetic_terrain import flat_plane
+from .terrain import Terrain
 
 GOLDEN_ANGLE_RAD = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -48,7 +50,6 @@ try:  # embreex is a hard dependency, but keep a working (slow) path without it
     from embreex.mesh_construction import TriangleMesh as _EmbreeTriangles
 except ImportError:  # pragma: no cover - depends on the environment
     _embree = None
-from trimesh.ray import ray_triangle as _ray_triangle
 
 _fallback_warned = False
 _WHOLE_LOCK = threading.Lock()

@@ -241,7 +241,7 @@ def _region_stats(psd, f, f_pk, first, last, edges, zero_pad: int):
             terms = [vals[:, :width], np.multiply(vals[:, :width], vals[:, :width], dtype=float)]
             terms += [np.multiply(vals[:, :width], vals[:, lag:lag + width], dtype=float)
                       for lag in lags]
-            for y, out in zip(terms, sums):
+            for y, out in zip(terms, sums, strict=True):
                 cs = np.zeros((y.shape[0], width + 1))
                 np.cumsum(y, axis=1, dtype=float, out=cs[:, 1:])
                 c = np.take_along_axis(cs, pos[r], axis=1)

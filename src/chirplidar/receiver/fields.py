@@ -56,7 +56,7 @@ def port_coefficients(s_lo: complex, s_sig: complex, lo_scale: float, sig_scale:
 def combine(coefs, arrays):
     """sum_i coef_i * array_i, skipping zero coefficients (a balanced pair cancels its LO term)."""
     out = None
-    for c, a in zip(coefs, arrays):
+    for c, a in zip(coefs, arrays, strict=True):
         if np.all(np.asarray(c) == 0):
             continue
         term = c * a

@@ -62,7 +62,7 @@ class ChirpTrain(PeriodicTrain):
     dc_v: float
 
     @classmethod
-    def from_config(cls, config) -> "ChirpTrain":
+    def from_config(cls, config) -> ChirpTrain:
         wf = config.waveform
         amplitude_v, dc_v = drive_levels(config)
         return cls(

@@ -53,7 +53,7 @@ class PNTrain(PeriodicTrain):
     dc_v: float
 
     @classmethod
-    def from_config(cls, config) -> "PNTrain":
+    def from_config(cls, config) -> PNTrain:
         wf = config.waveform
         amplitude_v, dc_v = drive_levels(config)
         return cls(period_s=wf.chirp_period_s, rise_s=wf.ramp_duty_cycle * wf.chirp_period_s,
