@@ -80,8 +80,10 @@ def cn2_array(cn2):
     """Refractive-index structure constant(s) Cn^2 (m^-2/3) as float64: finite and > 0."""
     c = np.asarray(cn2, dtype=float)
     if not np.all(np.isfinite(c)) or np.any(c <= 0.0):
-        raise ValueError("cn2 must be finite and > 0 m^-2/3 (no turbulence means r0 = inf; "
-                         "skip the turbulence effect instead)")
+        raise ValueError(
+            "cn2 must be finite and > 0 m^-2/3 (no turbulence means r0 = inf; "
+            "skip the turbulence effect instead)"
+        )
     return c
 
 

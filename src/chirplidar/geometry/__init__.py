@@ -2,18 +2,17 @@
 
 Frames and projections (ECEF, geodetic, EPSG:3413/3031 grids) are in :mod:`.frames`; flight
 paths in :mod:`.paths`, orbits in :mod:`.orbits`, attitude, beams and per-shot geometry in
-:mod:`.pointing`; generated terrain in :mod:`.synthetic_terrain`.
+:mod:`.pointing`; generated terrain in :mod:`.synthetic_terrain`; ray casting in :mod:`.raycast`
+and beam footprints in :mod:`.footprints`.
 """
 
+from .footprints import FootprintReturns, footprint_returns, footprint_subrays
 from .raycast import (
     EmbreeUnavailableWarning,
-    FootprintReturns,
     RayHits,
     bench_raycast,
     cast_rays,
     embree_available,
-    footprint_returns,
-    footprint_subrays,
 )
 from .synthetic_terrain import (
     SYNTHETIC_FEATURES,

@@ -102,8 +102,9 @@ def checked_epsg(epsg) -> int:
     if isinstance(epsg, (bool, np.bool_)) or not isinstance(epsg, (int, np.integer)):
         raise ValueError(f"epsg must be an integer EPSG code, got {epsg!r}")  # noqa: TRY004 (project rule: ValueError)
     if int(epsg) not in SUPPORTED_EPSG:
-        raise ValueError(f"epsg must be one of {SUPPORTED_EPSG} (polar stereographic scene frames),"
-                         f" got {epsg}")
+        raise ValueError(
+            f"epsg must be one of {SUPPORTED_EPSG} (polar stereographic scene frames), got {epsg}"
+        )
     return int(epsg)
 
 
@@ -122,8 +123,9 @@ def _arrays(names, values):
     try:
         return np.broadcast_arrays(*arrs)
     except ValueError:
-        raise ValueError(f"{', '.join(names)} must have broadcastable shapes, got "
-                         f"{[a.shape for a in arrs]}") from None
+        raise ValueError(
+            f"{', '.join(names)} must have broadcastable shapes, got {[a.shape for a in arrs]}"
+        ) from None
 
 
 def _lat(lat):
@@ -259,13 +261,16 @@ def ray_ellipsoid_distance_m(origin_ecef, direction_ecef, height_m=0.0) -> np.nd
         h = np.broadcast_to(h, o.shape[:-1])
     except ValueError:
         raise ValueError(
-            "origin_ecef, direction_ecef and height_m must have broadcastable shapes") from None
+            "origin_ecef, direction_ecef and height_m must have broadcastable shapes"
+        ) from None
     s = _ellipsoid_hit(o, d, h)
     if np.any(h != 0.0):
         ok = np.isfinite(s)
         for _ in range(4):
             p = o + s[..., None] * d
-            lat, lon, hh = ecef_to_geodetic(*(np.where(ok[..., None], p, o)[..., i] for i in range(3)))
+            lat, lon, hh = ecef_to_geodetic(
+                *(np.where(ok[..., None], p, o)[..., i] for i in range(3))
+            )
             up = local_up_ecef(lat, lon)
             rate = np.sum(d * up, axis=-1)  # dh/ds
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -326,11 +331,14 @@ def _ray_arrays(origin_name: str, origin, direction_name: str, direction):
     try:
         return np.broadcast_arrays(o, d)
     except ValueError:
-        raise ValueError(f"{origin_name} and {direction_name} must have broadcastable shapes") from None
+        raise ValueError(
+            f"{origin_name} and {direction_name} must have broadcastable shapes"
+        ) from None
 
 
-def rays_projected_from_ecef(origin_ecef, direction_ecef, epsg, *, target_height_m,
-                             entry_height_m=None) -> ProjectedRays:
+def rays_projected_from_ecef(
+    origin_ecef, direction_ecef, epsg, *, target_height_m, entry_height_m=None
+) -> ProjectedRays:
     """Convert ECEF rays (e.g. from a satellite) into scene-frame rays.
 
     origin_ecef, direction_ecef : (..., 3) ECEF origins [m] and unit directions.
@@ -397,8 +405,9 @@ def grid_axes_ecef(origin_m, epsg):
     return pts[0], axes[0], ey, up
 
 
-def rays_projected_local(origin_m, direction_true, epsg, *, target_height_m=None,
-                         entry_height_m=None) -> ProjectedRays:
+def rays_projected_local(
+    origin_m, direction_true, epsg, *, target_height_m=None, entry_height_m=None
+) -> ProjectedRays:
     """Scene-frame rays from origins in the scene frame and directions in true local metres.
 
     origin_m : (..., 3) scene-frame origins [m] (aircraft, UAV).
@@ -416,11 +425,13 @@ def rays_projected_local(origin_m, direction_true, epsg, *, target_height_m=None
         o_ecef, ex, ey, up = grid_axes_ecef(o, code)
         d_ecef = d[..., :1] * ex + d[..., 1:2] * ey + d[..., 2:] * up
         d_ecef = d_ecef / np.linalg.norm(d_ecef, axis=-1, keepdims=True)
-        return rays_projected_from_ecef(o_ecef, d_ecef, code, target_height_m=target_height_m,
-                                        entry_height_m=entry_height_m)
+        return rays_projected_from_ecef(
+            o_ecef, d_ecef, code, target_height_m=target_height_m, entry_height_m=entry_height_m
+        )
     k = scale_factor(o[..., 0], o[..., 1], code)
     dp = np.concatenate([d[..., :2] * k[..., None], d[..., 2:]], axis=-1)
     n = np.linalg.norm(dp, axis=-1)
     shape = o.shape[:-1]
-    return ProjectedRays(o.copy(), dp / n[..., None], np.zeros(shape), 1.0 / n,
-                         np.ones(shape, dtype=bool))
+    return ProjectedRays(
+        o.copy(), dp / n[..., None], np.zeros(shape), 1.0 / n, np.ones(shape, dtype=bool)
+    )

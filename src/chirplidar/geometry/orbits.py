@@ -11,6 +11,7 @@ adequate for shot geometry over a scene, not for absolute astronomy.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -39,8 +40,9 @@ def _rot3(theta):
     """Rotation matrices R3(theta) (n, 3, 3): frame rotation about z, v' = R v."""
     c, s = np.cos(theta), np.sin(theta)
     z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, s, z], -1), np.stack([-s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def _eci_to_ecef(r, v, theta):
@@ -93,10 +95,18 @@ class KeplerOrbit:
         if not 0.0 <= e < 1.0:
             raise ValueError(f"eccentricity must lie in [0, 1) (closed orbit), got {e}")
         if a * (1.0 - e) <= R_EARTH_M:
-            raise ValueError(f"semi_major_axis_m and eccentricity put the perigee radius "
-                             f"{a * (1 - e):.0f} m inside the Earth (R_E = {R_EARTH_M} m)")
-        for name in ("inclination_rad", "raan_rad", "arg_perigee_rad", "mean_anomaly_rad",
-                     "epoch_s", "gmst_at_epoch_rad"):
+            raise ValueError(
+                f"semi_major_axis_m and eccentricity put the perigee radius "
+                f"{a * (1 - e):.0f} m inside the Earth (R_E = {R_EARTH_M} m)"
+            )
+        for name in (
+            "inclination_rad",
+            "raan_rad",
+            "arg_perigee_rad",
+            "mean_anomaly_rad",
+            "epoch_s",
+            "gmst_at_epoch_rad",
+        ):
             object.__setattr__(self, name, _checks.real_scalar(name, getattr(self, name)))
         if not 0.0 <= self.inclination_rad <= np.pi:
             raise ValueError("inclination_rad must lie in [0, pi]")
@@ -105,7 +115,7 @@ class KeplerOrbit:
 
     @property
     def mean_motion_rad_s(self) -> float:
-        return float(np.sqrt(MU_EARTH_M3_S2 / self.semi_major_axis_m ** 3))
+        return float(np.sqrt(MU_EARTH_M3_S2 / self.semi_major_axis_m**3))
 
     @property
     def period_s(self) -> float:
@@ -116,7 +126,7 @@ class KeplerOrbit:
     def _k(self) -> float:
         if not self.j2:
             return 0.0
-        p = self.semi_major_axis_m * (1 - self.eccentricity ** 2)
+        p = self.semi_major_axis_m * (1 - self.eccentricity**2)
         return self.mean_motion_rad_s * J2_EARTH * (R_EARTH_M / p) ** 2
 
     @property
@@ -130,8 +140,9 @@ class KeplerOrbit:
     @property
     def mean_anomaly_rate_rad_s(self) -> float:
         """Secular rate of the mean anomaly: n plus its J2 term [rad/s]."""
-        return self.mean_motion_rad_s + 0.75 * self._k * np.sqrt(1 - self.eccentricity ** 2) * (
-            2 - 3 * np.sin(self.inclination_rad) ** 2)
+        return self.mean_motion_rad_s + 0.75 * self._k * np.sqrt(1 - self.eccentricity**2) * (
+            2 - 3 * np.sin(self.inclination_rad) ** 2
+        )
 
     def states_eci(self, t_s):
         """ECI positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
@@ -155,8 +166,14 @@ class KeplerOrbit:
         raan = self.raan_rad + self.raan_rate_rad_s * dt
         argp = self.arg_perigee_rad + wdot * dt
         i = self.inclination_rad
-        cO, sO, cw, sw, ci, si = np.cos(raan), np.sin(raan), np.cos(argp), np.sin(argp), \
-            np.cos(i), np.sin(i)
+        cO, sO, cw, sw, ci, si = (
+            np.cos(raan),
+            np.sin(raan),
+            np.cos(argp),
+            np.sin(argp),
+            np.cos(i),
+            np.sin(i),
+        )
         P = np.stack([cO * cw - sO * sw * ci, sO * cw + cO * sw * ci, sw * si], axis=-1)
         Q = np.stack([-cO * sw - sO * cw * ci, -sO * sw + cO * cw * ci, cw * si], axis=-1)
         r = x[:, None] * P + y[:, None] * Q
@@ -165,7 +182,9 @@ class KeplerOrbit:
         return r, v
 
     def earth_rotation_angle_rad(self, t_s) -> np.ndarray:
-        return self.gmst_at_epoch_rad + OMEGA_EARTH_RAD_S * (_checks.time_array("t_s", t_s) - self.epoch_s)
+        return self.gmst_at_epoch_rad + OMEGA_EARTH_RAD_S * (
+            _checks.time_array("t_s", t_s) - self.epoch_s
+        )
 
     def states(self, t_s):
         """ECEF positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
@@ -198,6 +217,9 @@ class TleOrbit:
     line2: str
     epoch_utc: str
     frame: str = field(default="ecef", init=False)
+    # set by __post_init__: the sgp4 Satrec and epoch_utc as MJD (UTC)
+    _sat: Any = field(init=False, repr=False, compare=False)
+    _epoch_mjd: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         from sgp4.api import Satrec
@@ -207,16 +229,22 @@ class TleOrbit:
         l1, l2 = str(self.line1).rstrip(), str(self.line2).rstrip()
         for name, line, first in (("line1", l1, "1"), ("line2", l2, "2")):
             if len(line) != 69 or line[0] != first:
-                raise ValueError(f"{name} is not line {first} of a TLE (69 characters starting "
-                                 f"with '{first} ', got {len(line)}: {line[:20]!r}...)")
+                raise ValueError(
+                    f"{name} is not line {first} of a TLE (69 characters starting "
+                    f"with '{first} ', got {len(line)}: {line[:20]!r}...)"
+                )
             digits = sum(int(c) for c in line[:68] if c.isdigit()) + line[:68].count("-")
             if not line[68].isdigit() or digits % 10 != int(line[68]):
-                raise ValueError(f"{name}: TLE checksum fails (column 69 is {line[68]!r}, the "
-                                 f"line's digits and minus signs sum to {digits} -> "
-                                 f"{digits % 10}): a damaged or mistyped element set")
+                raise ValueError(
+                    f"{name}: TLE checksum fails (column 69 is {line[68]!r}, the "
+                    f"line's digits and minus signs sum to {digits} -> "
+                    f"{digits % 10}): a damaged or mistyped element set"
+                )
         if l1[2:7] != l2[2:7]:
-            raise ValueError(f"line1 and line2 belong to different satellites "
-                             f"({l1[2:7].strip()} and {l2[2:7].strip()})")
+            raise ValueError(
+                f"line1 and line2 belong to different satellites "
+                f"({l1[2:7].strip()} and {l2[2:7].strip()})"
+            )
         sat = Satrec.twoline2rv(l1, l2)
         if sat.error:
             raise ValueError(f"line1/line2 are not a valid TLE (sgp4 error {sat.error})")
@@ -241,22 +269,26 @@ class TleOrbit:
         :data:`TLE_MAX_AGE_DAYS` from the TLE epoch."""
         age = np.array([t0_s, t1_s]) / 86400.0 + self.epoch_mjd - self.tle_epoch_mjd
         if np.max(np.abs(age)) > TLE_MAX_AGE_DAYS:
-            raise ValueError(f"{key}: the window reaches {np.max(np.abs(age)):.1f} days from the "
-                             f"TLE epoch; SGP4 is not trusted beyond {TLE_MAX_AGE_DAYS:.0f} days "
-                             "(its error grows by km per day): use an element set from the "
-                             "window's time")
+            raise ValueError(
+                f"{key}: the window reaches {np.max(np.abs(age)):.1f} days from the "
+                f"TLE epoch; SGP4 is not trusted beyond {TLE_MAX_AGE_DAYS:.0f} days "
+                "(its error grows by km per day): use an element set from the "
+                "window's time"
+            )
 
     def states_teme(self, t_s):
         """TEME positions (n, 3) [m] and velocities (n, 3) [m/s] at ``t_s`` (n,) [s]."""
         t = _checks.time_array("t_s", t_s)
         sat = self._sat
-        d = self.epoch_mjd - self.tle_epoch_mjd + t / 86400.0   # days after the TLE epoch
+        d = self.epoch_mjd - self.tle_epoch_mjd + t / 86400.0  # days after the TLE epoch
         jd = np.full(t.shape, sat.jdsatepoch)
         fr = sat.jdsatepochF + d
         err, r, v = sat.sgp4_array(jd, fr)
         if np.any(err != 0):
-            raise ValueError(f"t_s: SGP4 propagation failed (error codes "
-                             f"{sorted(set(err[err != 0].tolist()))}: decayed or invalid orbit)")
+            raise ValueError(
+                f"t_s: SGP4 propagation failed (error codes "
+                f"{sorted(set(err[err != 0].tolist()))}: decayed or invalid orbit)"
+            )
         return np.asarray(r).reshape(-1, 3) * 1e3, np.asarray(v).reshape(-1, 3) * 1e3
 
     def states(self, t_s):
@@ -272,4 +304,3 @@ class TleOrbit:
 
     def velocities(self, t_s):
         return self.states(t_s)[1]
-

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 import shapely
@@ -35,6 +36,10 @@ __all__ = [
 # --------------------------------------------------------------------------------------------
 # Polyline with constant speed (UAV)
 # --------------------------------------------------------------------------------------------
+
+
+#: Ground height z [m] under scene-frame points (x, y) [m], arrays in and out.
+GroundHeight = Callable[[np.ndarray, np.ndarray], Any]
 
 
 class OffTerrainError(ValueError):
@@ -62,12 +67,18 @@ class UavPath:
     waypoints_m: np.ndarray
     speed_mps: float
     altitude_mode: str = "absolute"
-    ground_height_m: Callable | None = None
+    ground_height_m: GroundHeight | None = None
     segment_tracks: np.ndarray | None = None
     max_climb_mps: float | None = None
     max_descent_mps: float | None = None
     profile_step_m: float = 2.0
     frame: str = field(default="projected", init=False)
+    # set by __post_init__: cumulative length [m] at each waypoint, and the climb-limited
+    # profile (distance, flight height, ground) [m] or None
+    _cum_m: np.ndarray = field(init=False, repr=False, compare=False)
+    _profile: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(
+        init=False, repr=False, compare=False
+    )
 
     def __post_init__(self):
         w = _checks.real_array("waypoints_m", self.waypoints_m)
@@ -78,8 +89,10 @@ class UavPath:
         else:
             tracks = np.asarray(self.segment_tracks)
             if tracks.shape != (w.shape[0] - 1,) or not np.issubdtype(tracks.dtype, np.integer):
-                raise ValueError(f"segment_tracks must be {w.shape[0] - 1} integers (one per "
-                                 f"leg), got {tracks.dtype} {tracks.shape}")
+                raise ValueError(
+                    f"segment_tracks must be {w.shape[0] - 1} integers (one per "
+                    f"leg), got {tracks.dtype} {tracks.shape}"
+                )
         seg = np.diff(w, axis=0)
         moves = np.linalg.norm(seg, axis=1) > 0.0
         w = w[np.concatenate([[True], moves])]
@@ -89,11 +102,13 @@ class UavPath:
         object.__setattr__(self, "segment_tracks", tracks[moves].astype(np.int64))
         object.__setattr__(self, "speed_mps", _checks.positive("speed_mps", self.speed_mps))
         if self.altitude_mode not in ("absolute", "above_ground"):
-            raise ValueError(f"altitude_mode must be 'absolute' or 'above_ground', "
-                             f"got {self.altitude_mode!r}")
+            raise ValueError(
+                f"altitude_mode must be 'absolute' or 'above_ground', got {self.altitude_mode!r}"
+            )
         if self.altitude_mode == "above_ground" and not callable(self.ground_height_m):
-            raise ValueError("ground_height_m must be a callable (x, y) -> z when "
-                             "altitude_mode='above_ground'")
+            raise ValueError(
+                "ground_height_m must be a callable (x, y) -> z when altitude_mode='above_ground'"
+            )
         lengths = np.linalg.norm(np.diff(w, axis=0), axis=1)
         object.__setattr__(self, "_cum_m", np.concatenate([[0.0], np.cumsum(lengths)]))
         limits = (self.max_climb_mps, self.max_descent_mps)
@@ -102,8 +117,10 @@ class UavPath:
             if None in limits:
                 raise ValueError("max_climb_mps and max_descent_mps go together")
             if self.altitude_mode != "above_ground":
-                raise ValueError("max_climb_mps / max_descent_mps shape an above_ground "
-                                 "profile; an absolute altitude does not follow the terrain")
+                raise ValueError(
+                    "max_climb_mps / max_descent_mps shape an above_ground "
+                    "profile; an absolute altitude does not follow the terrain"
+                )
             object.__setattr__(self, "_profile", self._flyable())
 
     def _flyable(self):
@@ -113,19 +130,32 @@ class UavPath:
         step = _checks.positive("profile_step_m", self.profile_step_m)
         s = np.union1d(np.arange(0.0, self.length_m, step), self._cum_m)
         p, _ = self._locate(s / self.speed_mps)
-        ground = np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
+        ground = self._ground_m(p[:, 0], p[:, 1])
         if not np.any(np.isfinite(ground)):
             raise OffTerrainError(
                 f"the path (x {p[:, 0].min():.0f}..{p[:, 0].max():.0f} m, y "
                 f"{p[:, 1].min():.0f}..{p[:, 1].max():.0f} m) never passes over the terrain: "
-                "altitude_mode = 'above_ground' has no ground to follow")
-        ok = np.isfinite(ground)   # off the terrain: hold the nearest known ground height
+                "altitude_mode = 'above_ground' has no ground to follow"
+            )
+        ok = np.isfinite(ground)  # off the terrain: hold the nearest known ground height
         ground = np.interp(s, s[ok], ground[ok])
         # Heights may differ from waypoint to waypoint: the clearance is the waypoints' own.
         clearance = np.interp(s, self._cum_m, self.waypoints_m[:, 2])
-        z = flyable_profile(s, ground + clearance - clearance.min(), clearance.min(),
-                            self.speed_mps, self.max_climb_mps, self.max_descent_mps)
+        z = flyable_profile(
+            s,
+            ground + clearance - clearance.min(),
+            clearance.min(),
+            self.speed_mps,
+            self.max_climb_mps,
+            self.max_descent_mps,
+        )
         return s, z, ground
+
+    def _ground_m(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Ground height [m] under (x, y) [m]; only above-ground paths, which have a sampler
+        (``__post_init__`` checks it), ask."""
+        ground = cast(GroundHeight, self.ground_height_m)
+        return np.asarray(ground(x, y), dtype=float)
 
     def profile_report(self) -> dict | None:
         """Height above ground and vertical rates of the climb-limited profile
@@ -151,8 +181,9 @@ class UavPath:
         if np.any((t < 0.0) | (t > self.duration_s * (1 + 1e-12))):
             raise ValueError(f"t_s must lie in [0, duration_s = {self.duration_s}] s")
         s = t * self.speed_mps
-        return np.clip(np.searchsorted(self._cum_m, s, side="right") - 1, 0,
-                       len(self._cum_m) - 2), s
+        return np.clip(
+            np.searchsorted(self._cum_m, s, side="right") - 1, 0, len(self._cum_m) - 2
+        ), s
 
     def _locate(self, t_s):
         i, s = self._segment(t_s)
@@ -163,7 +194,8 @@ class UavPath:
 
     def track_index(self, t_s) -> np.ndarray:
         """(n,) track flown at ``t_s``: the leg's entry of ``segment_tracks`` (-1: a transit)."""
-        return self.segment_tracks[self._segment(t_s)[0]]
+        tracks = cast(np.ndarray, self.segment_tracks)  # __post_init__ replaces None
+        return tracks[self._segment(t_s)[0]]
 
     def positions(self, t_s) -> np.ndarray:
         """(n, 3) scene-frame positions [m] at times ``t_s`` (n,) [s] since the path start."""
@@ -174,7 +206,7 @@ class UavPath:
             p[:, 2] = np.interp(_checks.time_array("t_s", t_s) * self.speed_mps, s, z)
         elif self.altitude_mode == "above_ground":
             p = p.copy()
-            p[:, 2] += np.asarray(self.ground_height_m(p[:, 0], p[:, 1]), dtype=float)
+            p[:, 2] += self._ground_m(p[:, 0], p[:, 1])
         return p
 
     def velocities(self, t_s) -> np.ndarray:
@@ -193,9 +225,10 @@ class UavPath:
             vh = np.linalg.norm(v[:, :2], axis=1)
             with np.errstate(invalid="ignore", divide="ignore"):
                 e = np.where(vh[:, None] > 0, v[:, :2] / vh[:, None], 0.0)
-            g = self.ground_height_m
-            dz = (np.asarray(g(p[:, 0] + h * e[:, 0], p[:, 1] + h * e[:, 1]), float)
-                  - np.asarray(g(p[:, 0] - h * e[:, 0], p[:, 1] - h * e[:, 1]), float)) / (2 * h)
+            dz = (
+                self._ground_m(p[:, 0] + h * e[:, 0], p[:, 1] + h * e[:, 1])
+                - self._ground_m(p[:, 0] - h * e[:, 0], p[:, 1] - h * e[:, 1])
+            ) / (2 * h)
             v = v.copy()
             v[:, 2] += dz * vh
         return v
@@ -212,8 +245,10 @@ def _polygon(polygon_xy) -> Polygon:
         raise ValueError(f"polygon must have shape (k >= 3, 2), got {p.shape}")
     poly = Polygon(p)
     if not poly.is_valid:
-        raise ValueError(f"polygon is not a simple valid polygon "
-                         f"({shapely.is_valid_reason(poly)}); self-intersecting outlines are refused")
+        raise ValueError(
+            f"polygon is not a simple valid polygon "
+            f"({shapely.is_valid_reason(poly)}); self-intersecting outlines are refused"
+        )
     if poly.area <= 0.0:
         raise ValueError("polygon has zero area")
     return poly
@@ -221,15 +256,16 @@ def _polygon(polygon_xy) -> Polygon:
 
 def _rotated_to_lines(poly: Polygon, heading_rad: float):
     """The polygon rotated so that lines of ``heading_rad`` run along +x', and that angle."""
-    ang = np.pi / 2 - heading_rad   # the lines' direction from +x
+    ang = np.pi / 2 - heading_rad  # the lines' direction from +x
     return affinity.rotate(poly, -ang, origin=(0, 0), use_radians=True), ang
 
 
 def lawnmower_width(polygon_xy, heading_rad) -> float:
     """Width [m] of the polygon across lines of ``heading_rad`` (see :func:`lawnmower_lines`):
     a spacing of width / n lays exactly n lines."""
-    rot, _ = _rotated_to_lines(_polygon(polygon_xy),
-                               _checks.real_scalar("heading_rad", heading_rad))
+    rot, _ = _rotated_to_lines(
+        _polygon(polygon_xy), _checks.real_scalar("heading_rad", heading_rad)
+    )
     return float(rot.bounds[3] - rot.bounds[1])
 
 
@@ -254,8 +290,10 @@ def lawnmower_lines(polygon_xy, line_spacing_m, heading_rad):
     xmin, ymin, xmax, ymax = rot.bounds
     n_float = np.ceil((ymax - ymin) / dx - 1e-9)
     if n_float > MAX_SURVEY_LINES:
-        raise ValueError(f"line_spacing_m = {dx:g} m gives {n_float:.3g} lines across the "
-                         f"{ymax - ymin:.0f} m polygon (more than {MAX_SURVEY_LINES})")
+        raise ValueError(
+            f"line_spacing_m = {dx:g} m gives {n_float:.3g} lines across the "
+            f"{ymax - ymin:.0f} m polygon (more than {MAX_SURVEY_LINES})"
+        )
     n = max(1, int(n_float))
     y0 = 0.5 * (ymin + ymax) - 0.5 * (n - 1) * dx  # centre the strips on the extent
     lines = []
@@ -325,6 +363,8 @@ def _csc(p1, psi1, p2, psi2, r):
         total = r * (a1 + a2) + L
         if best is None or total < best[0] - 1e-9:
             best = (total, c1, t1, a1, theta, L, c2, t2, a2)
+    if best is None:  # pragma: no cover - LSL and RSR always exist
+        raise ValueError("no Dubins CSC path between the poses")
     _, c1, t1, a1, theta, L, c2, t2, a2 = best
     q1 = c1 - t1 * r * np.array([-np.sin(theta), np.cos(theta)])  # exit point of arc 1
     return [("arc", c1, t1, psi1, a1), ("line", q1, theta, L), ("arc", c2, t2, theta, a2)]
@@ -346,6 +386,8 @@ class AircraftLines:
     speed_mps: float
     turn_radius_m: float
     frame: str = field(default="projected", init=False)
+    # set by __post_init__: the flight's segments (lines and arcs) as arrays
+    _seg: dict[str, np.ndarray] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         try:
@@ -353,8 +395,10 @@ class AircraftLines:
         except (TypeError, ValueError):
             raise ValueError("lines must be a sequence of (start_xy, end_xy) pairs") from None
         if arr.ndim != 3 or arr.shape[1:] != (2, 2) or arr.shape[0] < 1:
-            raise ValueError(f"lines must be a non-empty sequence of (start_xy, end_xy) pairs of "
-                             f"2-vectors, got array shape {arr.shape}")
+            raise ValueError(
+                f"lines must be a non-empty sequence of (start_xy, end_xy) pairs of "
+                f"2-vectors, got array shape {arr.shape}"
+            )
         arr = _checks.real_array("lines", arr)
         if np.any(np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1) <= 0):
             raise ValueError("lines must have distinct start and end points")
@@ -363,7 +407,7 @@ class AircraftLines:
         object.__setattr__(self, "speed_mps", _checks.positive("speed_mps", self.speed_mps))
         r = _checks.positive("turn_radius_m", self.turn_radius_m)
         object.__setattr__(self, "turn_radius_m", r)
-        segs = []  # (kind, line_index, spec)
+        segs: list[tuple[str, int, tuple]] = []  # (kind, line_index, spec)
         for i, (a, b) in enumerate(arr):
             psi = float(np.arctan2(*(b - a)[::-1]))
             segs.append(("line", i, (a, psi, float(np.linalg.norm(b - a)))))
@@ -391,9 +435,20 @@ class AircraftLines:
                 c, t, psi, sweep = spec
                 kind[j], centre[j], turn[j], psi0[j], length[j] = 1, c, t, psi, r * sweep
                 p0[j] = c - t * r * np.array([-np.sin(psi), np.cos(psi)])
-        object.__setattr__(self, "_seg", {"kind": kind, "line": line_idx, "p0": p0, "psi0": psi0,
-                                              "centre": centre, "turn": turn, "length": length,
-                                              "cum": np.concatenate([[0.0], np.cumsum(length)])})
+        object.__setattr__(
+            self,
+            "_seg",
+            {
+                "kind": kind,
+                "line": line_idx,
+                "p0": p0,
+                "psi0": psi0,
+                "centre": centre,
+                "turn": turn,
+                "length": length,
+                "cum": np.concatenate([[0.0], np.cumsum(length)]),
+            },
+        )
 
     @property
     def duration_s(self) -> float:
@@ -412,8 +467,9 @@ class AircraftLines:
         psi = g["psi0"][j] + np.where(arc, g["turn"][j] * ds / r, 0.0)
         u = np.stack([np.cos(psi), np.sin(psi)], axis=1)
         straight_p = g["p0"][j] + u * ds[:, None]
-        arc_p = g["centre"][j] + g["turn"][j][:, None] * r * np.stack([np.sin(psi), -np.cos(psi)],
-                                                                       axis=1)
+        arc_p = g["centre"][j] + g["turn"][j][:, None] * r * np.stack(
+            [np.sin(psi), -np.cos(psi)], axis=1
+        )
         xy = np.where(arc[:, None], arc_p, straight_p)
         pos = np.column_stack([xy, np.full(len(t), self.altitude_m)])
         vel = np.column_stack([u * self.speed_mps, np.zeros(len(t))])
@@ -430,5 +486,3 @@ class AircraftLines:
     def track_index(self, t_s) -> np.ndarray:
         """(n,) index of the survey line flown at ``t_s``; -1 during turns."""
         return self._eval(t_s)[2]
-
-

@@ -39,8 +39,6 @@ def _unit_rows(v):
     return v / n
 
 
-
-
 @dataclass(frozen=True)
 class Attitude:
     """Roll, pitch, yaw [rad]: scalars or (n,) arrays (one per shot)."""
@@ -59,10 +57,14 @@ class Attitude:
             vals.append(np.broadcast_to(a, (n,)))
         r, p, y = vals
         cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-        return np.stack([
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
-            np.stack([-sp, cp * sr, cp * cr], -1)], -2)
+        return np.stack(
+            [
+                np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+                np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+                np.stack([-sp, cp * sr, cp * cr], -1),
+            ],
+            -2,
+        )
 
 
 @dataclass(frozen=True)
@@ -75,25 +77,32 @@ class BeamPattern:
     off_nadir_rad: np.ndarray
     azimuth_rad: np.ndarray
     scan_rate_rad_s: float = 0.0
-    power_share: np.ndarray | None = None   # (n_beams,) transmitted power per beam, mean 1
+    power_share: np.ndarray | None = None  # (n_beams,) transmitted power per beam, mean 1
 
     def __post_init__(self):
         o = _checks.real_array("off_nadir_rad", self.off_nadir_rad)
         a = _checks.real_array("azimuth_rad", self.azimuth_rad)
         if o.ndim != 1 or a.shape != o.shape or o.size == 0:
-            raise ValueError(f"off_nadir_rad and azimuth_rad must be equal-length non-empty 1-D "
-                             f"arrays, got {o.shape} and {a.shape}")
+            raise ValueError(
+                f"off_nadir_rad and azimuth_rad must be equal-length non-empty 1-D "
+                f"arrays, got {o.shape} and {a.shape}"
+            )
         if np.any((o < 0) | (o >= np.pi / 2)):
             raise ValueError("off_nadir_rad must lie in [0, pi/2)")
         object.__setattr__(self, "off_nadir_rad", o)
         object.__setattr__(self, "azimuth_rad", a)
-        object.__setattr__(self, "scan_rate_rad_s",
-                           _checks.real_scalar("scan_rate_rad_s", self.scan_rate_rad_s))
-        share = np.ones(o.shape) if self.power_share is None else \
-            _checks.positive_array("power_share", self.power_share)
+        object.__setattr__(
+            self, "scan_rate_rad_s", _checks.real_scalar("scan_rate_rad_s", self.scan_rate_rad_s)
+        )
+        share = (
+            np.ones(o.shape)
+            if self.power_share is None
+            else _checks.positive_array("power_share", self.power_share)
+        )
         if share.shape != o.shape:
-            raise ValueError(f"power_share must have one value per beam {o.shape}, got "
-                             f"{share.shape}")
+            raise ValueError(
+                f"power_share must have one value per beam {o.shape}, got {share.shape}"
+            )
         object.__setattr__(self, "power_share", share / share.mean())
 
     @property
@@ -105,8 +114,9 @@ def nadir_beam() -> BeamPattern:
     return BeamPattern(np.array([0.0]), np.array([0.0]))
 
 
-def paired_beams_across_track(pair_spacing_rad, within_pair_rad, stagger_rad=0.0,
-                              power_ratio=1.0) -> BeamPattern:
+def paired_beams_across_track(
+    pair_spacing_rad, within_pair_rad, stagger_rad=0.0, power_ratio=1.0
+) -> BeamPattern:
     """Three pairs of beams across track (ICESat-2-like), ordered left to right.
 
     Pair centres at across-track angles -pair_spacing_rad, 0, +pair_spacing_rad; the two beams of
@@ -140,8 +150,9 @@ def conical_scan(off_nadir_rad, scan_rate_rad_s, phase_rad=0.0) -> BeamPattern:
     return BeamPattern(np.array([float(off_nadir_rad)]), np.array([float(phase_rad)]), rate)
 
 
-def beam_directions(velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_rms=0.0,
-                    rng=None) -> np.ndarray:
+def beam_directions(
+    velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_rms=0.0, rng=None
+) -> np.ndarray:
     """Unit beam directions (n, n_beams, 3) in the frame of ``velocity_unit`` and ``up``.
 
     velocity_unit, up : (n, 3) flight direction and local up (any common Cartesian frame, e.g.
@@ -155,8 +166,9 @@ def beam_directions(velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_
     v = _checks.real_array("velocity_unit", velocity_unit)
     u = _checks.real_array("up", up)
     if v.ndim != 2 or v.shape[1] != 3 or u.shape != v.shape:
-        raise ValueError(f"velocity_unit and up must both have shape (n, 3), got {v.shape} "
-                         f"and {u.shape}")
+        raise ValueError(
+            f"velocity_unit and up must both have shape (n, 3), got {v.shape} and {u.shape}"
+        )
     if not isinstance(beams, BeamPattern):
         raise ValueError("beams must be a BeamPattern")  # noqa: TRY004 (project rule: ValueError)
     n, b = v.shape[0], beams.n_beams
@@ -172,8 +184,10 @@ def beam_directions(velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_
     fwd = v - np.sum(v * u, axis=1, keepdims=True) * u
     fn = np.linalg.norm(fwd, axis=1)
     if np.any(fn <= 1e-9 * np.maximum(np.linalg.norm(v, axis=1), 1e-300)) or np.any(fn == 0):
-        raise ValueError("velocity_unit must have a horizontal component (vertical or zero "
-                         "velocity leaves the flight direction undefined)")
+        raise ValueError(
+            "velocity_unit must have a horizontal component (vertical or zero "
+            "velocity leaves the flight direction undefined)"
+        )
     fwd = fwd / fn[:, None]
     down = -u
     right = np.cross(down, fwd)
@@ -195,8 +209,9 @@ def beam_directions(velocity_unit, up, attitude, beams, *, t_s=None, jitter_rad_
     d = np.einsum("nbi,nij->nbj", d_body, basis)
     if sigma > 0:
         g = rng.normal(0.0, sigma, size=(n, b, 2))
-        ref = np.where(np.abs(d[..., 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]),
-                       np.array([1.0, 0.0, 0.0]))
+        ref = np.where(
+            np.abs(d[..., 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+        )
         e1 = _unit_rows(np.cross(d, ref))
         e2 = np.cross(d, e1)
         delta = g[..., :1] * e1 + g[..., 1:] * e2
@@ -261,9 +276,19 @@ def zero_doppler_attitude(attitude, velocity, up) -> Attitude:
     return Attitude(att.roll_rad, base + np.arctan2(v_up, v_h), att.yaw_rad)
 
 
-def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=0.0, rng=None,
-                  target_height_m=None, entry_height_m=None,
-                  doppler_steering: bool = False) -> ShotGeometry:
+def shot_geometry(
+    path,
+    t_s,
+    beams,
+    attitude=None,
+    *,
+    epsg=None,
+    jitter_rad_rms=0.0,
+    rng=None,
+    target_height_m=None,
+    entry_height_m=None,
+    doppler_steering: bool = False,
+) -> ShotGeometry:
     """Platform position, velocity and beam directions for each shot, and scene-frame rays.
 
     path : UavPath, AircraftLines, KeplerOrbit or TleOrbit. t_s : (n,) shot times [s] (may be
@@ -288,12 +313,17 @@ def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=
         rays = None
         if epsg is not None:
             frames.checked_epsg(epsg)
-            rays = frames.ProjectedRays(np.zeros((0, nb, 3)), np.zeros((0, nb, 3)),
-                                        np.zeros((0, nb)), np.zeros((0, nb)),
-                                        np.zeros((0, nb), dtype=bool))
+            rays = frames.ProjectedRays(
+                np.zeros((0, nb, 3)),
+                np.zeros((0, nb, 3)),
+                np.zeros((0, nb)),
+                np.zeros((0, nb)),
+                np.zeros((0, nb), dtype=bool),
+            )
         return ShotGeometry(t, empty3, empty3.copy(), np.zeros((0, nb, 3)), frame, rays)
-    pos, vel = path.states(t) if hasattr(path, "states") else (path.positions(t),
-                                                                 path.velocities(t))
+    pos, vel = (
+        path.states(t) if hasattr(path, "states") else (path.positions(t), path.velocities(t))
+    )
     if frame == "projected":
         up = np.broadcast_to(np.array([0.0, 0.0, 1.0]), pos.shape)
     else:
@@ -307,13 +337,15 @@ def shot_geometry(path, t_s, beams, attitude=None, *, epsg=None, jitter_rad_rms=
     if epsg is not None:
         origin = np.broadcast_to(pos[:, None, :], d.shape)
         if frame == "projected":
-            rays = frames.rays_projected_local(origin, d, epsg, target_height_m=target_height_m,
-                                               entry_height_m=entry_height_m)
+            rays = frames.rays_projected_local(
+                origin, d, epsg, target_height_m=target_height_m, entry_height_m=entry_height_m
+            )
         else:
             if target_height_m is None:
-                raise ValueError("target_height_m is required to convert ECEF rays to the scene "
-                                 "frame")
-            rays = frames.rays_projected_from_ecef(origin, d, epsg,
-                                                   target_height_m=target_height_m,
-                                                   entry_height_m=entry_height_m)
+                raise ValueError(
+                    "target_height_m is required to convert ECEF rays to the scene frame"
+                )
+            rays = frames.rays_projected_from_ecef(
+                origin, d, epsg, target_height_m=target_height_m, entry_height_m=entry_height_m
+            )
     return ShotGeometry(t, pos, vel, d, frame, rays)

@@ -31,8 +31,7 @@ def _extent(extent_m):
     try:
         x0, x1, y0, y1 = (float(v) for v in extent_m)
     except (TypeError, ValueError):
-        raise ValueError(f"extent_m must be (x0, x1, y0, y1) in metres, got {extent_m!r}") \
-            from None
+        raise ValueError(f"extent_m must be (x0, x1, y0, y1) in metres, got {extent_m!r}") from None
     if not all(np.isfinite([x0, x1, y0, y1])) or x1 <= x0 or y1 <= y0:
         raise ValueError(f"extent_m must be finite with x0 < x1 and y0 < y1, got {extent_m!r}")
     return x0, x1, y0, y1
@@ -62,32 +61,52 @@ def flat_plane_heightfield(height_m, extent_m, resolution_m, material: str = "sn
 
 def flat_plane(height_m, extent_m, resolution_m, material: str = "snow") -> Terrain:
     """Horizontal plane z = height_m over extent_m = (x0, x1, y0, y1), grid step resolution_m."""
-    return Terrain.from_heightfield(*flat_plane_heightfield(height_m, extent_m, resolution_m,
-                                                            material))
+    return Terrain.from_heightfield(
+        *flat_plane_heightfield(height_m, extent_m, resolution_m, material)
+    )
 
 
-def sloped_plane_heightfield(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
-                             material: str = "snow", origin_m=(0.0, 0.0)):
+def sloped_plane_heightfield(
+    slope_rad,
+    azimuth_rad,
+    height_m,
+    extent_m,
+    resolution_m,
+    material: str = "snow",
+    origin_m=(0.0, 0.0),
+):
     """Heightfield ``(x_m, y_m, z_m, codes)`` of ``sloped_plane``."""
     s, az, h = float(slope_rad), float(azimuth_rad), float(height_m)
     if not np.isfinite([s, az, h]).all() or not 0 <= s < np.pi / 2:
-        raise ValueError(f"slope_rad must lie in [0, pi/2) and azimuth_rad, height_m be finite; "
-                         f"got {slope_rad!r}, {azimuth_rad!r}, {height_m!r}")
+        raise ValueError(
+            f"slope_rad must lie in [0, pi/2) and azimuth_rad, height_m be finite; "
+            f"got {slope_rad!r}, {azimuth_rad!r}, {height_m!r}"
+        )
     x, y = _grid(extent_m, resolution_m)
     xx, yy = np.meshgrid(x - origin_m[0], y - origin_m[1])
     z = h + np.tan(s) * (xx * np.cos(az) + yy * np.sin(az))
     return x, y, z, np.full(z.shape, material_code(material), np.int32)
 
 
-def sloped_plane(slope_rad, azimuth_rad, height_m, extent_m, resolution_m,
-                 material: str = "snow", origin_m=(0.0, 0.0)) -> Terrain:
+def sloped_plane(
+    slope_rad,
+    azimuth_rad,
+    height_m,
+    extent_m,
+    resolution_m,
+    material: str = "snow",
+    origin_m=(0.0, 0.0),
+) -> Terrain:
     """Plane through (origin_m, height_m) rising at ``slope_rad`` towards ``azimuth_rad``.
 
     azimuth_rad is measured from +x towards +y (mathematical convention, not a compass bearing):
     z = height_m + tan(slope_rad) * ((x - x0) cos(az) + (y - y0) sin(az)).
     """
-    return Terrain.from_heightfield(*sloped_plane_heightfield(
-        slope_rad, azimuth_rad, height_m, extent_m, resolution_m, material, origin_m))
+    return Terrain.from_heightfield(
+        *sloped_plane_heightfield(
+            slope_rad, azimuth_rad, height_m, extent_m, resolution_m, material, origin_m
+        )
+    )
 
 
 # ---------------------------------------------------------------------- synthetic ice sheet
@@ -124,19 +143,18 @@ def _smooth_noise(rng, shape, dx, corr_along_m, corr_across_m, azimuth_rad):
     kc = -kx * np.sin(azimuth_rad) + ky * np.cos(azimuth_rad)
     filt = np.exp(-0.25 * ((ka * corr_along_m) ** 2 + (kc * corr_across_m) ** 2))
     field_ = np.fft.ifft2(np.fft.fft2(white) * filt).real
-    rms = np.sqrt(np.mean(field_ ** 2))
+    rms = np.sqrt(np.mean(field_**2))
     return field_ / rms if rms > 0 else field_
-
 
 
 class _FlowLine(NamedTuple):
     """Node coordinates of a synthetic ice sheet and their place on its flow line."""
 
-    xx: np.ndarray          # (ny, nx) x of every node [m]
-    yy: np.ndarray          # (ny, nx) y of every node [m]
-    xi: np.ndarray          # (ny, nx) 0 at the divide, 1 at the margin (signed)
-    sgn: float              # +1 when the margin lies at larger x than the divide
-    length_m: float         # L, divide to margin [m]
+    xx: np.ndarray  # (ny, nx) x of every node [m]
+    yy: np.ndarray  # (ny, nx) y of every node [m]
+    xi: np.ndarray  # (ny, nx) 0 at the divide, 1 at the margin (signed)
+    sgn: float  # +1 when the margin lies at larger x than the divide
+    length_m: float  # L, divide to margin [m]
     divide_x_m: float
 
 
@@ -156,8 +174,9 @@ def _check_ice_sheet_args(rng, features, margin_x_m, divide_x_m, ela_fraction, b
     for name, band in bands.items():
         lo, hi = (float(v) for v in band)
         if not (np.isfinite([lo, hi]).all() and 0.0 <= lo <= hi):
-            raise ValueError(f"{name} must be (lo, hi) fractions of L with 0 <= lo <= hi, "
-                             f"got {band!r}")
+            raise ValueError(
+                f"{name} must be (lo, hi) fractions of L with 0 <= lo <= hi, got {band!r}"
+            )
     return feats, L
 
 
@@ -174,8 +193,20 @@ def _crevasses(r, z, fl: _FlowLine, y_span, dx, band_, spacing_m, depth_m):
     return z - np.where(band, depth_m * trough, 0.0)
 
 
-def _ponds(r, z, codes, fl: _FlowLine, y, ice_free, divide_height_m, n_ponds, pond_band,
-           pond_radius_m, pond_depth_m, pond_max_basin_m):
+def _ponds(
+    r,
+    z,
+    codes,
+    fl: _FlowLine,
+    y,
+    ice_free,
+    divide_height_m,
+    n_ponds,
+    pond_band,
+    pond_radius_m,
+    pond_depth_m,
+    pond_max_basin_m,
+):
     """``z`` with the melt ponds dug and flooded; their nodes become ``open_water`` in
     ``codes`` (in place)."""
     xx, yy, sgn, L, divide_x_m = fl.xx, fl.yy, fl.sgn, fl.length_m, fl.divide_x_m
@@ -185,10 +216,12 @@ def _ponds(r, z, codes, fl: _FlowLine, y, ice_free, divide_height_m, n_ponds, po
     rad = r.uniform(pond_radius_m[0], pond_radius_m[1], n_ponds)
     # regional surface slope at each centre: the basin must be deeper than the slope
     # drop across it to hold water (real lakes sit in bed-driven surface depressions)
-    slope = np.abs(vialov_height(cx + rad, divide_height_m, L, divide_x_m)
-                   - vialov_height(cx - rad, divide_height_m, L, divide_x_m)) / (2 * rad)
-    for cxk, cyk, rk, gk in zip(cx, cy, rad, slope, strict=True):   # a handful of ponds
-        d2 = ((xx - cxk) ** 2 + (yy - cyk) ** 2) / rk ** 2
+    slope = np.abs(
+        vialov_height(cx + rad, divide_height_m, L, divide_x_m)
+        - vialov_height(cx - rad, divide_height_m, L, divide_x_m)
+    ) / (2 * rad)
+    for cxk, cyk, rk, gk in zip(cx, cy, rad, slope, strict=True):  # a handful of ponds
+        d2 = ((xx - cxk) ** 2 + (yy - cyk) ** 2) / rk**2
         near = d2 < 4.0
         if not near.any():
             continue
@@ -205,8 +238,9 @@ def _ponds(r, z, codes, fl: _FlowLine, y, ice_free, divide_height_m, n_ponds, po
     return z
 
 
-def _outcrops(r, z, codes, fl: _FlowLine, y, n_outcrops, outcrop_band, outcrop_height_m,
-              outcrop_radius_m):
+def _outcrops(
+    r, z, codes, fl: _FlowLine, y, n_outcrops, outcrop_band, outcrop_height_m, outcrop_radius_m
+):
     """``z`` with the rock hills raised; where they rise above the ice, ``codes`` become
     ``rock`` (in place)."""
     xx, yy = fl.xx, fl.yy
@@ -216,27 +250,40 @@ def _outcrops(r, z, codes, fl: _FlowLine, y, n_outcrops, outcrop_band, outcrop_h
     oh = r.uniform(outcrop_height_m[0], outcrop_height_m[1], n_outcrops)
     orad = r.uniform(outcrop_radius_m[0], outcrop_radius_m[1], n_outcrops)
     rock = np.zeros_like(z)
-    for oxk, oyk, ohk, ork in zip(ox, oy, oh, orad, strict=True):   # a few hills
-        d2 = ((xx - oxk) ** 2 + (yy - oyk) ** 2) / ork ** 2
+    for oxk, oyk, ohk, ork in zip(ox, oy, oh, orad, strict=True):  # a few hills
+        d2 = ((xx - oxk) ** 2 + (yy - oyk) ** 2) / ork**2
         rock = np.maximum(rock, ohk * np.exp(-d2))
     above = rock > z
     codes[above] = MATERIAL_CODES["rock"]
     return np.where(above, rock, z)
 
 
-def synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng: np.random.Generator, *,
-                        divide_height_m: float, margin_x_m: float, divide_x_m: float = 0.0,
-                        features=SYNTHETIC_FEATURES,
-                        ela_fraction: float = 0.6,
-                        crevasse_band=(0.80, 0.95), crevasse_spacing_m: float = 40.0,
-                        crevasse_depth_m: float = 8.0,
-                        sastrugi_rms_m: float = 0.1, sastrugi_length_m=(8.0, 1.5),
-                        sastrugi_azimuth_rad: float = 0.0,
-                        pond_band=(0.6, 0.85), n_ponds: int = 6,
-                        pond_radius_m=(100.0, 400.0), pond_depth_m: float = 1.5,
-                        pond_max_basin_m: float = 10.0,
-                        n_outcrops: int = 4, outcrop_height_m=(20.0, 60.0),
-                        outcrop_radius_m=(60.0, 200.0), outcrop_band=(0.9, 1.0)):
+def synthetic_ice_sheet_heightfield(
+    extent_m,
+    resolution_m,
+    rng: np.random.Generator,
+    *,
+    divide_height_m: float,
+    margin_x_m: float,
+    divide_x_m: float = 0.0,
+    features=SYNTHETIC_FEATURES,
+    ela_fraction: float = 0.6,
+    crevasse_band=(0.80, 0.95),
+    crevasse_spacing_m: float = 40.0,
+    crevasse_depth_m: float = 8.0,
+    sastrugi_rms_m: float = 0.1,
+    sastrugi_length_m=(8.0, 1.5),
+    sastrugi_azimuth_rad: float = 0.0,
+    pond_band=(0.6, 0.85),
+    n_ponds: int = 6,
+    pond_radius_m=(100.0, 400.0),
+    pond_depth_m: float = 1.5,
+    pond_max_basin_m: float = 10.0,
+    n_outcrops: int = 4,
+    outcrop_height_m=(20.0, 60.0),
+    outcrop_radius_m=(60.0, 200.0),
+    outcrop_band=(0.9, 1.0),
+):
     """Heightfield ``(x_m, y_m, z_m, codes)`` of a simple, physically shaped ice-sheet margin.
 
     :func:`synthetic_ice_sheet` turns it into a :class:`Terrain` (same arguments); the scene
@@ -276,8 +323,13 @@ def synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng: np.random.Gener
     ``resolution_m`` is the grid step: the mesh has 2 (nx-1)(ny-1) triangles.
     """
     feats, L = _check_ice_sheet_args(
-        rng, features, margin_x_m, divide_x_m, ela_fraction,
-        {"crevasse_band": crevasse_band, "pond_band": pond_band, "outcrop_band": outcrop_band})
+        rng,
+        features,
+        margin_x_m,
+        divide_x_m,
+        ela_fraction,
+        {"crevasse_band": crevasse_band, "pond_band": pond_band, "outcrop_band": outcrop_band},
+    )
     x, y = _grid(extent_m, resolution_m)
     dx = float(x[1] - x[0])
     xx, yy = np.meshgrid(x, y)
@@ -287,41 +339,87 @@ def synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng: np.random.Gener
     ice[fl.xi < -1.0] = 0.0
     ice_free = np.abs(fl.xi) >= 1.0
     z = ice.copy()
-    codes = np.where(np.abs(fl.xi) < ela_fraction, MATERIAL_CODES["snow"],
-                     MATERIAL_CODES["blue_ice"]).astype(np.int32)
+    codes = np.where(
+        np.abs(fl.xi) < ela_fraction, MATERIAL_CODES["snow"], MATERIAL_CODES["blue_ice"]
+    ).astype(np.int32)
     codes[ice_free] = MATERIAL_CODES["rock"]
     # one child generator per feature, whether or not it is drawn from
     g = dict(zip(SYNTHETIC_FEATURES, rng.spawn(len(SYNTHETIC_FEATURES)), strict=True))
     if "crevasses" in feats and crevasse_depth_m > 0:
-        z = _crevasses(g["crevasses"], z, fl, float(y[-1] - y[0]), dx, crevasse_band,
-                       crevasse_spacing_m, crevasse_depth_m)
+        z = _crevasses(
+            g["crevasses"],
+            z,
+            fl,
+            float(y[-1] - y[0]),
+            dx,
+            crevasse_band,
+            crevasse_spacing_m,
+            crevasse_depth_m,
+        )
     if "sastrugi" in feats and sastrugi_rms_m > 0:
-        noise = _smooth_noise(g["sastrugi"], z.shape, dx, sastrugi_length_m[0],
-                              sastrugi_length_m[1], sastrugi_azimuth_rad)
+        noise = _smooth_noise(
+            g["sastrugi"],
+            z.shape,
+            dx,
+            sastrugi_length_m[0],
+            sastrugi_length_m[1],
+            sastrugi_azimuth_rad,
+        )
         z = z + np.where(codes == MATERIAL_CODES["snow"], sastrugi_rms_m * noise, 0.0)
     if "ponds" in feats and n_ponds > 0:
-        z = _ponds(g["ponds"], z, codes, fl, y, ice_free, divide_height_m, n_ponds, pond_band,
-                   pond_radius_m, pond_depth_m, pond_max_basin_m)
+        z = _ponds(
+            g["ponds"],
+            z,
+            codes,
+            fl,
+            y,
+            ice_free,
+            divide_height_m,
+            n_ponds,
+            pond_band,
+            pond_radius_m,
+            pond_depth_m,
+            pond_max_basin_m,
+        )
     if "outcrops" in feats and n_outcrops > 0:
-        z = _outcrops(g["outcrops"], z, codes, fl, y, n_outcrops, outcrop_band,
-                      outcrop_height_m, outcrop_radius_m)
+        z = _outcrops(
+            g["outcrops"],
+            z,
+            codes,
+            fl,
+            y,
+            n_outcrops,
+            outcrop_band,
+            outcrop_height_m,
+            outcrop_radius_m,
+        )
     return x, y, z, codes
 
 
 def synthetic_ice_sheet(extent_m, resolution_m, rng: np.random.Generator, **params) -> Terrain:
     return Terrain.from_heightfield(
-        *synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng, **params))
+        *synthetic_ice_sheet_heightfield(extent_m, resolution_m, rng, **params)
+    )
 
 
 synthetic_ice_sheet.__doc__ = (
     "A :class:`Terrain` from :func:`synthetic_ice_sheet_heightfield` (same arguments).\n\n"
-    + (synthetic_ice_sheet_heightfield.__doc__ or ""))
+    + (synthetic_ice_sheet_heightfield.__doc__ or "")
+)
 
 
 #: The functions whose source defines the generated heightfields: the scene loader hashes their
 #: source into its cache key, so editing any of them invalidates cached terrain.
 HEIGHTFIELD_GENERATORS = (
-    synthetic_ice_sheet_heightfield, _check_ice_sheet_args, _crevasses, _ponds, _outcrops,
-    vialov_height, _smooth_noise, _grid, _extent, flat_plane_heightfield,
+    synthetic_ice_sheet_heightfield,
+    _check_ice_sheet_args,
+    _crevasses,
+    _ponds,
+    _outcrops,
+    vialov_height,
+    _smooth_noise,
+    _grid,
+    _extent,
+    flat_plane_heightfield,
     sloped_plane_heightfield,
 )

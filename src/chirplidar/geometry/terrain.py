@@ -31,7 +31,14 @@ from ..target.materials import MATERIALS
 # Code <-> name table of surface materials. The order is fixed here (not taken from the order of
 # MATERIALS) so that codes stay stable if materials.py is reordered or extended.
 MATERIAL_NAMES: tuple[str, ...] = (
-    "snow", "firn", "blue_ice", "open_water", "rock", "snow_fresh", "thesis_target")
+    "snow",
+    "firn",
+    "blue_ice",
+    "open_water",
+    "rock",
+    "snow_fresh",
+    "thesis_target",
+)
 _missing = [n for n in MATERIAL_NAMES if n not in MATERIALS]
 if _missing:  # pragma: no cover - guards against a renamed material
     raise ImportError(f"terrain material table names unknown materials: {_missing}")
@@ -43,8 +50,7 @@ def material_code(name: str) -> int:
     try:
         return MATERIAL_CODES[name]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIAL_NAMES)}") \
-            from None
+        raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIAL_NAMES)}") from None
 
 
 def material_name(code: int) -> str:
@@ -75,9 +81,11 @@ class HeightGrid:
     def __post_init__(self):
         ny, nx = self.y_m.size, self.x_m.size
         if self.z_m.shape != (ny, nx) or self.cell_face.shape != (ny - 1, nx - 1):
-            raise ValueError(f"HeightGrid: z_m must be ({ny}, {nx}) and cell_face "
-                             f"({ny - 1}, {nx - 1}), got {self.z_m.shape}, "
-                             f"{self.cell_face.shape}")
+            raise ValueError(
+                f"HeightGrid: z_m must be ({ny}, {nx}) and cell_face "
+                f"({ny - 1}, {nx - 1}), got {self.z_m.shape}, "
+                f"{self.cell_face.shape}"
+            )
         for a in (self.x_m, self.y_m, self.z_m, self.cell_face):
             a.setflags(write=False)
 
@@ -89,8 +97,9 @@ class HeightGrid:
         the closed triangles count (as for a ray that grazes an edge). NaN outside the grid,
         inside holes and where x or y is not finite.
         """
-        x, y = np.broadcast_arrays(np.asarray(x_m, dtype=np.float64),
-                                   np.asarray(y_m, dtype=np.float64))
+        x, y = np.broadcast_arrays(
+            np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64)
+        )
         gx, gy, z, cf = self.x_m, self.y_m, self.z_m, self.cell_face
         out = np.full(x.shape, np.nan)
         inside = (x >= gx[0]) & (x <= gx[-1]) & (y >= gy[0]) & (y <= gy[-1])  # False for NaN
@@ -106,15 +115,23 @@ class HeightGrid:
         i0, j0, u0, v0 = i, j, u, v
         for di, dj in ((1, 0), (0, 1), (1, 1)):
             ti, tj = np.maximum(i0 - di, 0), np.maximum(j0 - dj, 0)
-            move = ((cf[j, i] < 0) & (cf[tj, ti] >= 0) & (i0 >= di) & (j0 >= dj)
-                    & ((u0 == 0) | (di == 0)) & ((v0 == 0) | (dj == 0)))
+            move = (
+                (cf[j, i] < 0)
+                & (cf[tj, ti] >= 0)
+                & (i0 >= di)
+                & (j0 >= dj)
+                & ((u0 == 0) | (di == 0))
+                & ((v0 == 0) | (dj == 0))
+            )
             i, j = np.where(move, ti, i), np.where(move, tj, j)
             u, v = np.where(move, u0 + di, u), np.where(move, v0 + dj, v)
         # Barycentric weights: exact at the nodes, and the same sum on both sides of every
         # edge and of the diagonal, so the surface is continuous to the last bit.
-        h = np.where(u >= v,
-                     (1 - u) * z[j, i] + (u - v) * z[j, i + 1] + v * z[j + 1, i + 1],
-                     (1 - v) * z[j, i] + (v - u) * z[j + 1, i] + u * z[j + 1, i + 1])
+        h = np.where(
+            u >= v,
+            (1 - u) * z[j, i] + (u - v) * z[j, i + 1] + v * z[j + 1, i + 1],
+            (1 - v) * z[j, i] + (v - u) * z[j + 1, i] + u * z[j + 1, i + 1],
+        )
         out[inside] = np.where(cf[j, i] >= 0, h, np.nan)
         return out
 
@@ -139,7 +156,7 @@ class HeightGrid:
         ok = self.cell_face >= 0
         used = np.zeros(self.z_m.shape, dtype=bool)
         for dj, di in ((0, 0), (0, 1), (1, 0), (1, 1)):
-            used[dj:dj + ok.shape[0], di:di + ok.shape[1]] |= ok
+            used[dj : dj + ok.shape[0], di : di + ok.shape[1]] |= ok
         return used
 
     def face_vertices(self, face_index) -> np.ndarray:
@@ -148,7 +165,7 @@ class HeightGrid:
         f = np.asarray(face_index, dtype=np.int64)
         nx = self.x_m.size
         j, i = np.divmod(self.terrain_cells[f >> 1], nx - 1)
-        up = f & 1               # 0: (v00, v10, v11); 1: the cell's second, (v00, v11, v01)
+        up = f & 1  # 0: (v00, v10, v11); 1: the cell's second, (v00, v11, v01)
         n00 = j * nx + i
         x, y, z = self.x_m, self.y_m, self.z_m.ravel()
         out = np.empty((f.size, 3, 3))
@@ -164,8 +181,8 @@ class HeightGrid:
         ny, nx = self.z_m.shape
         ok = (self.cell_face >= 0).ravel()
         idx = np.arange(ny * nx).reshape(ny, nx)
-        v00, v10 = idx[:-1, :-1].ravel()[ok], idx[:-1, 1:].ravel()[ok]   # (j, i), (j, i+1)
-        v01, v11 = idx[1:, :-1].ravel()[ok], idx[1:, 1:].ravel()[ok]     # (j+1, i), (j+1, i+1)
+        v00, v10 = idx[:-1, :-1].ravel()[ok], idx[:-1, 1:].ravel()[ok]  # (j, i), (j, i+1)
+        v01, v11 = idx[1:, :-1].ravel()[ok], idx[1:, 1:].ravel()[ok]  # (j+1, i), (j+1, i+1)
         faces = np.empty((2 * v00.size, 3), dtype=np.int64)
         faces[0::2] = np.column_stack([v00, v10, v11])
         faces[1::2] = np.column_stack([v00, v11, v01])
@@ -181,18 +198,18 @@ class _LazyMesh:
     built on first access -- a run never needs it (heights, ray casting and face planes come
     from the grid), and for millions of cells it costs a good part of loading a scene."""
 
-    def __set_name__(self, owner, name):
+    def __set_name__(self, owner: type, name: str) -> None:
         self.attr = "_" + name
 
-    def __get__(self, obj, objtype=None):
+    def __get__(self, obj: Terrain | None, objtype: type | None = None) -> trimesh.Trimesh:
         if obj is None:
-            raise AttributeError("mesh has no default")   # a required dataclass field
+            raise AttributeError("mesh has no default")  # a required dataclass field
         mesh = obj.__dict__[self.attr]
-        if mesh is None:
+        if mesh is None and obj.grid is not None:  # (__post_init__ refuses neither)
             mesh = obj.__dict__[self.attr] = obj.grid.build_mesh()
         return mesh
 
-    def __set__(self, obj, value):
+    def __set__(self, obj: Terrain, value: trimesh.Trimesh | None) -> None:
         obj.__dict__[self.attr] = value
 
 
@@ -209,15 +226,16 @@ class Terrain:
     grid: the :class:`HeightGrid` of a heightfield terrain (``from_heightfield``), else None.
     """
 
-    mesh: trimesh.Trimesh = _LazyMesh()
-    face_materials: np.ndarray
+    mesh: _LazyMesh = _LazyMesh()
+    # mypy takes the descriptor for a default; it is none (its class-level __get__ raises)
+    face_materials: np.ndarray  # type: ignore[misc]
     material_names: tuple[str, ...] = MATERIAL_NAMES
     holes: int = 0
     grid: HeightGrid | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        mesh = self.__dict__["_mesh"]      # as given (None: built from the grid when needed)
+        mesh = self.__dict__["_mesh"]  # as given (None: built from the grid when needed)
         if self.grid is not None and not isinstance(self.grid, HeightGrid):
             raise ValueError(f"grid must be a HeightGrid or None, got {type(self.grid).__name__}")
         if mesh is None and self.grid is not None:
@@ -228,16 +246,21 @@ class Terrain:
             n_faces = len(mesh.faces)
             if not np.all(np.isfinite(mesh.vertices)):
                 raise ValueError("mesh vertices must be finite (NaN/inf found)")
-            if self.grid is not None and 2 * int(np.count_nonzero(self.grid.cell_face >= 0)) \
-                    != n_faces:
-                raise ValueError("grid must be the HeightGrid the mesh was built from "
-                                 "(two faces per valid cell)")
+            if (
+                self.grid is not None
+                and 2 * int(np.count_nonzero(self.grid.cell_face >= 0)) != n_faces
+            ):
+                raise ValueError(
+                    "grid must be the HeightGrid the mesh was built from (two faces per valid cell)"
+                )
         if n_faces == 0:
             raise ValueError("mesh has no faces")
         codes = np.asarray(self.face_materials)
         if codes.shape != (n_faces,) or not np.issubdtype(codes.dtype, np.integer):
-            raise ValueError(f"face_materials must be an integer array of shape ({n_faces},), "
-                             f"got {codes.dtype} {codes.shape}")
+            raise ValueError(
+                f"face_materials must be an integer array of shape ({n_faces},), "
+                f"got {codes.dtype} {codes.shape}"
+            )
         names = tuple(self.material_names)
         if codes.min() < 0 or codes.max() >= len(names):
             raise ValueError(f"face_materials codes must lie in 0..{len(names) - 1}")
@@ -317,29 +340,37 @@ class Terrain:
             if not meshes:
                 raise ValueError(f"terrain mesh file {path} has no faces (no mesh geometry)")
             loaded = loaded.to_mesh()
-        if isinstance(loaded, trimesh.PointCloud):   # vertices but no faces (e.g. PLY/OBJ)
-            raise ValueError(f"terrain mesh file {path} has no faces "  # noqa: TRY004
-                             f"(only {len(loaded.vertices)} vertices)")
+        if isinstance(loaded, trimesh.PointCloud):  # vertices but no faces (e.g. PLY/OBJ)
+            raise ValueError(
+                f"terrain mesh file {path} has no faces "  # noqa: TRY004
+                f"(only {len(loaded.vertices)} vertices)"
+            )
         if not isinstance(loaded, trimesh.Trimesh):
             raise ValueError(  # noqa: TRY004 (project rule: ValueError)
-                f"terrain mesh file {path} holds no triangle mesh "
-                f"(got {type(loaded).__name__})")
+                f"terrain mesh file {path} holds no triangle mesh (got {type(loaded).__name__})"
+            )
         if len(loaded.faces) == 0:
             raise ValueError(f"terrain mesh file {path} has no faces")
         if not np.all(np.isfinite(loaded.vertices)):
             raise ValueError(f"terrain mesh file {path} has non-finite vertices")
         keep = loaded.nondegenerate_faces()
         if not np.any(keep):
-            raise ValueError(f"terrain mesh file {path} has no faces of non-zero area "
-                             f"({len(loaded.faces)} degenerate faces only)")
-        mesh = trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
-                               faces=np.asarray(loaded.faces)[keep], process=False)
+            raise ValueError(
+                f"terrain mesh file {path} has no faces of non-zero area "
+                f"({len(loaded.faces)} degenerate faces only)"
+            )
+        mesh = trimesh.Trimesh(
+            vertices=np.asarray(loaded.vertices, dtype=np.float64),
+            faces=np.asarray(loaded.faces)[keep],
+            process=False,
+        )
         mesh.remove_unreferenced_vertices()
         return cls(mesh, np.full(len(mesh.faces), code, dtype=np.int32))
 
     @classmethod
-    def from_heightfield(cls, x_m, y_m, z_m, material_codes,
-                         material_names: tuple[str, ...] = MATERIAL_NAMES) -> Terrain:
+    def from_heightfield(
+        cls, x_m, y_m, z_m, material_codes, material_names: tuple[str, ...] = MATERIAL_NAMES
+    ) -> Terrain:
         """Grid heights to a mesh: two triangles per cell, vectorised.
 
         x_m (nx,), y_m (ny,): strictly monotonic node coordinates (m). z_m (ny, nx): heights (m);
@@ -375,8 +406,10 @@ class Terrain:
         if not np.issubdtype(codes.dtype, np.integer):
             raise ValueError(f"material_codes must be integers, got {codes.dtype}")
         if codes.shape not in ((ny, nx), (ny - 1, nx - 1)):
-            raise ValueError(f"material_codes must have shape ({ny}, {nx}) or "
-                             f"({ny - 1}, {nx - 1}), got {codes.shape}")
+            raise ValueError(
+                f"material_codes must have shape ({ny}, {nx}) or "
+                f"({ny - 1}, {nx - 1}), got {codes.shape}"
+            )
         if codes.min() < 0 or codes.max() >= len(material_names):
             raise ValueError(f"material_codes must lie in 0..{len(material_names) - 1}")
 
@@ -392,21 +425,23 @@ class Terrain:
             raise ValueError("z_m has no cell with four valid (non-NaN) corners")
         if codes.shape == (ny - 1, nx - 1):
             face_codes = np.repeat(codes[cell_ok], 2)
-        else:   # per node: a triangle takes the majority of (v00, v10, v11) / (v00, v11, v01)
+        else:  # per node: a triangle takes the majority of (v00, v10, v11) / (v00, v11, v01)
             c00, c10 = codes[:-1, :-1][cell_ok], codes[:-1, 1:][cell_ok]
             c01, c11 = codes[1:, :-1][cell_ok], codes[1:, 1:][cell_ok]
             face_codes = np.empty(2 * n_ok, dtype=codes.dtype)
             for k, (a, b, d) in enumerate(((c00, c10, c11), (c00, c11, c01))):
                 face_codes[k::2] = np.where((a == b) | (a == d), a, np.where(b == d, b, a))
         cell_face = np.full(cell_ok.shape, -1, dtype=np.int64)
-        cell_face[cell_ok] = 2 * np.arange(n_ok)   # the mesh's faces, cell by cell (row-major)
+        cell_face[cell_ok] = 2 * np.arange(n_ok)  # the mesh's faces, cell by cell (row-major)
         grid = HeightGrid(x.copy(), y.copy(), z.copy(), cell_face)
-        return cls(None, face_codes.astype(np.int32), tuple(material_names),
-                   cell_ok.size - n_ok, grid)
+        return cls(
+            None, face_codes.astype(np.int32), tuple(material_names), cell_ok.size - n_ok, grid
+        )
 
     @classmethod
-    def from_dem(cls, path, material: str = "snow", band: int = 1,
-                 nodata: str = "holes") -> Terrain:
+    def from_dem(
+        cls, path, material: str = "snow", band: int = 1, nodata: str = "holes"
+    ) -> Terrain:
         """Load a DEM raster (GeoTIFF, ...) with rasterio, honouring its nodata value.
 
         Node coordinates are the pixel centres in the raster's CRS (projected metres expected;
@@ -426,8 +461,9 @@ class Terrain:
         try:
             import rasterio
         except ImportError as exc:
-            raise ImportError("Terrain.from_dem needs rasterio: pip install chirplidar[dem]") \
-                from exc
+            raise ImportError(
+                "Terrain.from_dem needs rasterio: pip install chirplidar[dem]"
+            ) from exc
         path = os.fspath(path)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"DEM file not found: {path}")
@@ -435,14 +471,17 @@ class Terrain:
         try:
             with rasterio.open(path) as src:
                 if not 1 <= int(band) <= src.count:
-                    raise ValueError(f"DEM {path} has {src.count} band(s); band {band} "
-                                     "does not exist")
+                    raise ValueError(
+                        f"DEM {path} has {src.count} band(s); band {band} does not exist"
+                    )
                 z = src.read(int(band)).astype(np.float64)
                 nodata_value = src.nodata
                 tr = src.transform
                 if src.crs is not None and src.crs.is_geographic:
-                    raise ValueError(f"DEM {path} is in geographic coordinates; "
-                                     "reproject to a projected CRS in metres")
+                    raise ValueError(
+                        f"DEM {path} is in geographic coordinates; "
+                        "reproject to a projected CRS in metres"
+                    )
         except ValueError:
             raise
         except Exception as exc:
@@ -467,12 +506,13 @@ class Terrain:
                     f"DEM {path} has {rows.size} no-data pixels (of {z.size}) in rows "
                     f"{r0}..{r1}, columns {c0}..{c1} (pixel centres x {xs[0]:.3f}..{xs[1]:.3f} m, "
                     f"y {ys[0]:.3f}..{ys[1]:.3f} m); choose nodata 'holes' (rays there miss) "
-                    "or 'fill' (nearest valid height)")
+                    "or 'fill' (nearest valid height)"
+                )
             if nodata == "fill":
                 from scipy.ndimage import distance_transform_edt
+
                 # indices of the nearest valid (mask 0) pixel for every pixel
-                idx = distance_transform_edt(missing, return_distances=False,
-                                             return_indices=True)
+                idx = distance_transform_edt(missing, return_distances=False, return_indices=True)
                 z = z[tuple(idx)]
         try:
             return cls.from_heightfield(x, y, z, np.full(z.shape, code, dtype=np.int32))
