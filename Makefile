@@ -4,9 +4,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 # The optional-dependency extras make install puts in the virtualenv (pyproject.toml).
-EXTRAS := test,docs
+EXTRAS := test,docs,lint
 
-.PHONY: install demo thesis-demo test test-slow bench docs clean
+.PHONY: install demo thesis-demo test test-slow bench docs lint clean
 
 install: $(STAMP)
 
@@ -47,6 +47,21 @@ bench: install
 # The documentation site into site/ (mkdocs.yml); warnings are errors.
 docs: install
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
+# Lint: ruff everywhere, ruff format and mypy on the physics kernels and the tiers (the lists in
+# pyproject.toml and KERNEL_PATHS), the import layers (lint-imports, on this checkout's src) and
+# the module-level viz imports lint-imports cannot see (tests/test_layers.py).
+KERNEL_PATHS := src/chirplidar/units.py src/chirplidar/_checks.py src/chirplidar/_threads.py \
+	src/chirplidar/doppler.py src/chirplidar/optics src/chirplidar/atmosphere src/chirplidar/target \
+	src/chirplidar/geometry src/chirplidar/processing src/chirplidar/receiver \
+	src/chirplidar/transmitter src/chirplidar/waveform tests/test_layers.py
+
+lint: install
+	$(BIN)/ruff check src tests
+	$(BIN)/ruff format --check $(KERNEL_PATHS)
+	$(BIN)/mypy
+	PYTHONPATH=src $(BIN)/lint-imports
+	$(BIN)/python -m pytest -q -p no:cacheprovider tests/test_layers.py
 
 clean:
 	rm -rf $(VENV) build site src/*.egg-info

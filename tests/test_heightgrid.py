@@ -9,7 +9,8 @@ import pytest
 
 from chirplidar.geometry import raycast
 from chirplidar.geometry.raycast import cast_rays
-from chirplidar.geometry.terrain import HeightGrid, Terrain, flat_plane
+from chirplidar.geometry.synthetic_terrain import flat_plane
+from chirplidar.geometry.terrain import HeightGrid, Terrain
 
 
 def _mesh_only(t: Terrain) -> Terrain:

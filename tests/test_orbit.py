@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from chirplidar.geometry import earth_orientation as eo
-from chirplidar.geometry.platform import KeplerOrbit, TleOrbit
+from chirplidar.geometry.orbits import KeplerOrbit, TleOrbit
 
 # ICESat-2 (NORAD 43613), the public element set of 2026-10-04 (CelesTrak / Space-Track).
 ICESAT2_L1 = "1 43613U 18070A   26277.57046165  .00001587  00000+0  57409-4 0  9990"

@@ -32,7 +32,8 @@ from conftest import write_scene
 from pyproj import CRS, Proj, Transformer
 
 from chirplidar.cli import main
-from chirplidar.geometry.terrain import Terrain, flat_plane, sloped_plane
+from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
+from chirplidar.geometry.terrain import Terrain
 from chirplidar.mission.results import build_dataset, write_netcdf
 from chirplidar.viz import planmap
 from chirplidar.viz._mpl import plt

@@ -7,7 +7,7 @@ from pyproj import Transformer
 from shapely.geometry import LineString, Polygon
 
 from chirplidar.geometry import frames as F
-from chirplidar.geometry import platform as P
+from chirplidar.geometry import orbits, paths, pointing
 
 MU = 3.986004418e14  # Vallado, Table D-1 (brief)
 RE = 6378137.0
@@ -18,7 +18,7 @@ RE = 6378137.0
 
 def test_uav_straight_segment_constant_speed():
     # Reference: closed form x = v t along a straight segment.
-    uav = P.UavPath(np.array([[0.0, 0.0, 100.0], [1000.0, 0.0, 100.0], [1000.0, 500.0, 150.0]]),
+    uav = paths.UavPath(np.array([[0.0, 0.0, 100.0], [1000.0, 0.0, 100.0], [1000.0, 500.0, 150.0]]),
                     speed_mps=10.0)
     t = np.array([0.0, 25.0, 99.9])
     assert np.allclose(uav.positions(t), [[0, 0, 100], [250, 0, 100], [999, 0, 100]])
@@ -31,26 +31,26 @@ def test_uav_straight_segment_constant_speed():
     with pytest.raises(ValueError, match="t_s"):
         uav.positions(np.array([uav.duration_s + 1.0]))
     with pytest.raises(ValueError, match="speed_mps"):
-        P.UavPath(np.zeros((2, 3)) + [[0, 0, 0], [1, 0, 0]], speed_mps=0.0)
+        paths.UavPath(np.zeros((2, 3)) + [[0, 0, 0], [1, 0, 0]], speed_mps=0.0)
 
 
 def test_uav_above_ground_follows_terrain():
     # Reference: z = ground(x, y) + AGL; v_z = slope * v_x for a plane of slope 0.01.
-    uav = P.UavPath(np.array([[0.0, 0.0, 50.0], [1000.0, 0.0, 50.0]]), 5.0, "above_ground",
+    uav = paths.UavPath(np.array([[0.0, 0.0, 50.0], [1000.0, 0.0, 50.0]]), 5.0, "above_ground",
                     ground_height_m=lambda x, y: 2000.0 + 0.01 * x)
     t = np.array([10.0, 100.0])
     assert np.allclose(uav.positions(t)[:, 2], 2050.0 + 0.01 * 5.0 * t)
     assert np.allclose(uav.velocities(t)[:, 2], 0.05)
     with pytest.raises(ValueError, match="ground_height_m"):
-        P.UavPath(np.array([[0.0, 0.0, 50.0], [1.0, 0.0, 50.0]]), 5.0, "above_ground")
+        paths.UavPath(np.array([[0.0, 0.0, 50.0], [1.0, 0.0, 50.0]]), 5.0, "above_ground")
 
 
 # ---------------------------------------------------------------- lawnmower
 
 
 def _check_lawnmower(poly_xy, spacing, heading):
-    lines = P.lawnmower_lines(poly_xy, spacing, heading)
-    wp, legs = P.lawnmower(poly_xy, spacing, heading)
+    lines = paths.lawnmower_lines(poly_xy, spacing, heading)
+    wp, legs = paths.lawnmower(poly_xy, spacing, heading)
     assert wp.shape == (2 * len(lines), 2)
     # legs 2i are the lines (numbered in flight order), legs 2i + 1 the transits between them
     assert legs.tolist() == [i // 2 if i % 2 == 0 else -1 for i in range(2 * len(lines) - 1)]
@@ -82,19 +82,19 @@ def test_uav_track_index_follows_the_legs():
     # three legs: line 0, a transit (-1), line 1; a repeated waypoint (zero-length leg) is dropped
     # with its track entry, so the legs keep their tracks
     w = np.array([[0, 0, 50], [100, 0, 50], [100, 0, 50], [100, 20, 50], [0, 20, 50]], float)
-    path = P.UavPath(w, 10.0, segment_tracks=np.array([0, 7, -1, 1]))
+    path = paths.UavPath(w, 10.0, segment_tracks=np.array([0, 7, -1, 1]))
     t = np.array([0.0, 5.0, 10.5, 11.9, 12.5, 21.9])  # s; legs end at 10, 12 and 22 s
     assert path.track_index(t).tolist() == [0, 0, -1, -1, 1, 1]
     # default: each leg its own track
-    assert P.UavPath(w, 10.0).track_index(np.array([1.0, 11.0, 15.0])).tolist() == [0, 2, 3]
+    assert paths.UavPath(w, 10.0).track_index(np.array([1.0, 11.0, 15.0])).tolist() == [0, 2, 3]
     with pytest.raises(ValueError, match="segment_tracks"):
-        P.UavPath(w, 10.0, segment_tracks=np.array([0, 1]))
+        paths.UavPath(w, 10.0, segment_tracks=np.array([0, 1]))
 
 
 def test_lawnmower_self_intersecting_raises():
     bowtie = np.array([[0, 0], [100, 100], [100, 0], [0, 100]], float)
     with pytest.raises(ValueError, match="polygon"):
-        P.lawnmower(bowtie, 10.0, 0.0)
+        paths.lawnmower(bowtie, 10.0, 0.0)
 
 
 # ---------------------------------------------------------------- aircraft
@@ -104,7 +104,7 @@ def test_aircraft_semicircle_turn_and_continuity():
     # Reference: for line spacing = 2 r the Dubins turn is a semicircle of radius r centred
     # between the line ends; path length 2 L + pi r.
     r, v = 200.0, 60.0
-    ac = P.AircraftLines([((0, 0), (1000, 0)), ((1000, 400), (0, 400))], 500.0, v, r)
+    ac = paths.AircraftLines([((0, 0), (1000, 0)), ((1000, 400), (0, 400))], 500.0, v, r)
     assert ac.duration_s == pytest.approx((2000.0 + np.pi * r) / v)
     t = np.linspace(1000.0 / v, (1000.0 + np.pi * r) / v, 50)
     p = ac.positions(t)
@@ -119,7 +119,7 @@ def test_aircraft_semicircle_turn_and_continuity():
 ])
 def test_aircraft_position_and_heading_continuous(lines):
     r, v = 250.0, 70.0
-    ac = P.AircraftLines(lines, 800.0, v, r)
+    ac = paths.AircraftLines(lines, 800.0, v, r)
     t = np.linspace(0.0, ac.duration_s, 200001)
     p = ac.positions(t)
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)
@@ -140,7 +140,7 @@ I_SSO = np.radians(97.4)  # sun-synchronous inclination at 500 km (brief)
 
 
 def _circular(i_rad=I_SSO, j2=True, **kw):
-    return P.KeplerOrbit(RE + 500e3, 0.0, i_rad, 0.3, 0.0, 0.0, 0.0, j2=j2, **kw)
+    return orbits.KeplerOrbit(RE + 500e3, 0.0, i_rad, 0.3, 0.0, 0.0, 0.0, j2=j2, **kw)
 
 
 def test_kepler_circular_radius_and_period():
@@ -180,11 +180,11 @@ def test_j2_raan_rate_sun_synchronous():
 
 def test_kepler_velocity_is_derivative_and_vis_viva():
     # Reference: vis-viva v^2 = mu (2 / r - 1 / a) (two-body); central differences of position.
-    orb = P.KeplerOrbit(7.2e6, 0.05, 1.2, 0.4, 0.7, 2.0, 100.0, j2=False)
+    orb = orbits.KeplerOrbit(7.2e6, 0.05, 1.2, 0.4, 0.7, 2.0, 100.0, j2=False)
     r, v = orb.states_eci(np.array([130.0, 2000.0]))
     rn = np.linalg.norm(r, axis=1)
     assert np.allclose(np.sum(v * v, axis=1), MU * (2 / rn - 1 / 7.2e6), rtol=1e-10)
-    orb = P.KeplerOrbit(7.2e6, 0.05, 1.2, 0.4, 0.7, 2.0, 100.0)  # with J2 drift, ECEF
+    orb = orbits.KeplerOrbit(7.2e6, 0.05, 1.2, 0.4, 0.7, 2.0, 100.0)  # with J2 drift, ECEF
     t = np.array([500.0, 4000.0])
     h = 1e-3
     fd = (orb.positions(t + h) - orb.positions(t - h)) / (2 * h)
@@ -193,9 +193,9 @@ def test_kepler_velocity_is_derivative_and_vis_viva():
 
 def test_kepler_bad_inputs():
     with pytest.raises(ValueError, match="eccentricity"):
-        P.KeplerOrbit(7e6, 1.2, 1.0, 0, 0, 0, 0)
+        orbits.KeplerOrbit(7e6, 1.2, 1.0, 0, 0, 0, 0)
     with pytest.raises(ValueError, match="perigee"):
-        P.KeplerOrbit(6.5e6, 0.1, 1.0, 0, 0, 0, 0)
+        orbits.KeplerOrbit(6.5e6, 0.1, 1.0, 0, 0, 0, 0)
 
 
 def test_tle_orbit_needs_sgp4():
@@ -203,7 +203,7 @@ def test_tle_orbit_needs_sgp4():
         import sgp4  # noqa: F401
     except ImportError:
         with pytest.raises(ImportError, match=r"chirplidar\[orbit\]"):
-            P.TleOrbit("1", "2")
+            orbits.TleOrbit("1", "2")
     else:
         pytest.skip("sgp4 installed")
 
@@ -211,10 +211,10 @@ def test_tle_orbit_needs_sgp4():
 def test_satellite_nadir_ray_hits_ellipsoid_at_height():
     # Reference: geodetic height from pyproj (ECEF -> EPSG:4979), 1 cm (brief).
     # argument of latitude 80 deg at epoch: the satellite is at high northern latitude.
-    orb = P.KeplerOrbit(RE + 500e3, 0.001, np.radians(97.4), np.radians(250.0), 0.0,
+    orb = orbits.KeplerOrbit(RE + 500e3, 0.001, np.radians(97.4), np.radians(250.0), 0.0,
                         np.radians(80.0), 0.0)
-    t = P.shot_times(0.0, 0.05, 200.0)
-    g = P.shot_geometry(orb, t, P.nadir_beam(), epsg=3413, target_height_m=-200.0,
+    t = pointing.shot_times(0.0, 0.05, 200.0)
+    g = pointing.shot_geometry(orb, t, pointing.nadir_beam(), epsg=3413, target_height_m=-200.0,
                         entry_height_m=4000.0)
     pos = g.position_m
     lon, lat, h = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(
@@ -246,12 +246,12 @@ def _angle(a, b):
 def test_nadir_and_off_nadir_beams():
     # Reference: definition of off-nadir angle (angle to -up).
     v, up = _frames(50)
-    d = P.beam_directions(v, up, None, P.nadir_beam())
+    d = pointing.beam_directions(v, up, None, pointing.nadir_beam())
     assert d.shape == (50, 1, 3)
     assert np.allclose(d[:, 0], -up, atol=1e-12)
     th = np.radians(20.0)
-    beams = P.BeamPattern(np.full(4, th), np.radians([0.0, 90.0, 180.0, 270.0]))
-    d = P.beam_directions(v, up, P.Attitude(), beams)
+    beams = pointing.BeamPattern(np.full(4, th), np.radians([0.0, 90.0, 180.0, 270.0]))
+    d = pointing.beam_directions(v, up, pointing.Attitude(), beams)
     assert np.allclose(_angle(d, -up[:, None, :]), th, atol=1e-12)
     assert np.allclose(np.linalg.norm(d, axis=-1), 1.0)
     # azimuth 0 leans forward, 90 deg to the right (right = forward x up)
@@ -267,29 +267,29 @@ def test_attitude_roll_pitch():
     # positive pitch = nose up (nadir beam looks forward).
     v = np.array([[1.0, 0, 0]])
     up = np.array([[0.0, 0, 1]])
-    d = P.beam_directions(v, up, P.Attitude(roll_rad=0.1), P.nadir_beam())[0, 0]
+    d = pointing.beam_directions(v, up, pointing.Attitude(roll_rad=0.1), pointing.nadir_beam())[0, 0]
     assert np.allclose(d, [0.0, np.sin(0.1), -np.cos(0.1)])  # left of +x heading is +y
-    d = P.beam_directions(v, up, P.Attitude(pitch_rad=0.1), P.nadir_beam())[0, 0]
+    d = pointing.beam_directions(v, up, pointing.Attitude(pitch_rad=0.1), pointing.nadir_beam())[0, 0]
     assert np.allclose(d, [np.sin(0.1), 0.0, -np.cos(0.1)])
 
 
 def test_paired_beams_and_conical_scan():
     v = np.array([[0.0, 1.0, 0]] * 3)
     up = np.array([[0.0, 0, 1]] * 3)
-    pat = P.paired_beams_across_track(6.65e-3, 1.8e-4)
-    d = P.beam_directions(v, up, None, pat)
+    pat = pointing.paired_beams_across_track(6.65e-3, 1.8e-4)
+    d = pointing.beam_directions(v, up, None, pat)
     assert d.shape == (3, 6, 3)
     across = np.arctan2(d[0, :, 0], -d[0, :, 2])  # +x is right of a +y heading
     expect = np.array([-6.65e-3 - 9e-5, -6.65e-3 + 9e-5, -9e-5, 9e-5, 6.65e-3 - 9e-5,
                        6.65e-3 + 9e-5])
     assert np.allclose(across, expect, atol=1e-15)
     # conical: 10 deg cone, quarter turn per second -> azimuth 0, 90, 180 deg at t = 0, 1, 2 s
-    cone = P.conical_scan(np.radians(10.0), np.pi / 2)
-    d = P.beam_directions(v, up, None, cone, t_s=np.array([0.0, 1.0, 2.0]))[:, 0]
+    cone = pointing.conical_scan(np.radians(10.0), np.pi / 2)
+    d = pointing.beam_directions(v, up, None, cone, t_s=np.array([0.0, 1.0, 2.0]))[:, 0]
     s = np.sin(np.radians(10.0))
     assert np.allclose(d[:, :2], [[0, s], [s, 0], [0, -s]], atol=1e-12)
     with pytest.raises(ValueError, match="t_s"):
-        P.beam_directions(v, up, None, cone)
+        pointing.beam_directions(v, up, None, cone)
 
 
 def test_jitter_statistics_and_no_draws_when_off():
@@ -298,52 +298,52 @@ def test_jitter_statistics_and_no_draws_when_off():
     v = np.tile([[1.0, 0, 0]], (n, 1))
     up = np.tile([[0.0, 0, 1]], (n, 1))
     rng = np.random.default_rng(7)
-    d = P.beam_directions(v, up, None, P.nadir_beam(), jitter_rad_rms=1e-4, rng=rng)
+    d = pointing.beam_directions(v, up, None, pointing.nadir_beam(), jitter_rad_rms=1e-4, rng=rng)
     a = _angle(d[:, 0], -up)
     assert np.mean(a ** 2) == pytest.approx(2e-8, rel=0.05)
     rng = np.random.default_rng(7)
     state = rng.bit_generator.state
-    P.beam_directions(v[:5], up[:5], None, P.nadir_beam(), rng=rng)
+    pointing.beam_directions(v[:5], up[:5], None, pointing.nadir_beam(), rng=rng)
     assert rng.bit_generator.state == state
     with pytest.raises(ValueError, match="rng"):
-        P.beam_directions(v[:5], up[:5], None, P.nadir_beam(), jitter_rad_rms=1e-4)
+        pointing.beam_directions(v[:5], up[:5], None, pointing.nadir_beam(), jitter_rad_rms=1e-4)
 
 
 def test_vertical_velocity_raises():
     with pytest.raises(ValueError, match="velocity_unit"):
-        P.beam_directions(np.array([[0.0, 0, 1]]), np.array([[0.0, 0, 1]]), None, P.nadir_beam())
+        pointing.beam_directions(np.array([[0.0, 0, 1]]), np.array([[0.0, 0, 1]]), None, pointing.nadir_beam())
 
 
 # ---------------------------------------------------------------- shots
 
 
 def test_shot_times():
-    t = P.shot_times(1.0, 2.0, 10.0)
+    t = pointing.shot_times(1.0, 2.0, 10.0)
     assert np.allclose(t, 1.0 + np.arange(10) / 10.0)
-    assert P.shot_times(5.0, 5.0, 1e4).shape == (0,)
+    assert pointing.shot_times(5.0, 5.0, 1e4).shape == (0,)
     with pytest.raises(ValueError, match="prf_hz"):
-        P.shot_times(0.0, 1.0, 0.0)
+        pointing.shot_times(0.0, 1.0, 0.0)
 
 
 def test_zero_shots_give_empty_arrays():
-    uav = P.UavPath(np.array([[0.0, 0.0, 100.0], [100.0, 0.0, 100.0]]), 5.0)
-    pat = P.paired_beams_across_track(0.01, 0.001)
-    g = P.shot_geometry(uav, P.shot_times(3.0, 3.0, 1000.0), pat, epsg=3413)
+    uav = paths.UavPath(np.array([[0.0, 0.0, 100.0], [100.0, 0.0, 100.0]]), 5.0)
+    pat = pointing.paired_beams_across_track(0.01, 0.001)
+    g = pointing.shot_geometry(uav, pointing.shot_times(3.0, 3.0, 1000.0), pat, epsg=3413)
     assert g.t_s.shape == (0,) and g.position_m.shape == (0, 3) and g.velocity_mps.shape == (0, 3)
     assert g.direction.shape == (0, 6, 3)
     assert g.rays.origin_m.shape == (0, 6, 3) and g.rays.range_offset_m.shape == (0, 6)
     orb = _circular()
-    g = P.shot_geometry(orb, np.zeros(0), P.nadir_beam())
+    g = pointing.shot_geometry(orb, np.zeros(0), pointing.nadir_beam())
     assert g.position_m.shape == (0, 3) and g.direction.shape == (0, 1, 3) and g.rays is None
 
 
 def test_shot_geometry_uav_rays_in_scene_frame():
     # Reference: flat-Earth slant range (h_agl / cos theta) for a 15 deg beam over the plane
     # z = 1000 m in true metres; the scale factor k must not change it.
-    uav = P.UavPath(np.array([[0.0, -1.5e6, 1100.0], [2000.0, -1.5e6, 1100.0]]), 15.0)
-    t = P.shot_times(0.0, 10.0, 5.0)
-    pat = P.BeamPattern(np.array([0.0, np.radians(15.0)]), np.array([0.0, np.pi / 2]))
-    g = P.shot_geometry(uav, t, pat, epsg=3413)
+    uav = paths.UavPath(np.array([[0.0, -1.5e6, 1100.0], [2000.0, -1.5e6, 1100.0]]), 15.0)
+    t = pointing.shot_times(0.0, 10.0, 5.0)
+    pat = pointing.BeamPattern(np.array([0.0, np.radians(15.0)]), np.array([0.0, np.pi / 2]))
+    g = pointing.shot_geometry(uav, t, pat, epsg=3413)
     rays = g.rays
     tt = (1000.0 - rays.origin_m[..., 2]) / rays.direction[..., 2]
     rng_m = rays.range_m(tt)
@@ -359,7 +359,7 @@ def test_uav_climb_limited_profile_keeps_limits_and_clearance():
         return np.maximum(0.0, 60.0 - 0.6 * np.abs(np.asarray(x) - 1000.0))
 
     w = np.array([[0.0, 0.0, 100.0], [2000.0, 0.0, 100.0]])
-    path = P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
+    path = paths.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
                      profile_step_m=1.0)
     t = np.linspace(0.0, path.duration_s, 4001)
     p, v = path.positions(t), path.velocities(t)
@@ -368,7 +368,7 @@ def test_uav_climb_limited_profile_keeps_limits_and_clearance():
     assert v[:, 2].max() <= 2.0 + 1e-9 and v[:, 2].min() >= -3.0 - 1e-9
     assert p[np.argmin(np.abs(p[:, 0] - 1000.0)), 2] == pytest.approx(160.0, abs=0.1)
     # the climb starts 60 m / (2 / 20) = 600 m before the ridge top (closed form): at x = 400 m
-    top = P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
+    top = paths.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0, max_descent_mps=3.0,
                     profile_step_m=1.0)
     z = top.positions(np.array([390.0, 410.0]) / 20.0)[:, 2]
     assert z[0] == pytest.approx(100.0, abs=1e-6) and z[1] == pytest.approx(101.0, abs=0.01)
@@ -376,10 +376,10 @@ def test_uav_climb_limited_profile_keeps_limits_and_clearance():
     assert rep["min_clearance_m"] == pytest.approx(100.0, abs=1e-6)
     assert rep["max_climb_mps"] == pytest.approx(2.0, rel=1e-9)
     # without limits the path follows the ground exactly: 0.6 x 20 m/s = 12 m/s on the slope
-    exact = P.UavPath(w, 20.0, "above_ground", ground)
+    exact = paths.UavPath(w, 20.0, "above_ground", ground)
     assert exact.velocities(np.array([47.5]))[0, 2] == pytest.approx(12.0, rel=1e-6)   # x = 950 m
     assert exact.profile_report() is None
     with pytest.raises(ValueError, match="go together"):
-        P.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0)
+        paths.UavPath(w, 20.0, "above_ground", ground, max_climb_mps=2.0)
     with pytest.raises(ValueError, match="absolute altitude"):
-        P.UavPath(w, 20.0, "absolute", None, max_climb_mps=2.0, max_descent_mps=3.0)
+        paths.UavPath(w, 20.0, "absolute", None, max_climb_mps=2.0, max_descent_mps=3.0)

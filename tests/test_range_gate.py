@@ -11,7 +11,7 @@ import pytest
 
 from chirplidar.config.loader import ConfigError, config_with, load_mission
 from chirplidar.geometry import frames
-from chirplidar.geometry import platform as P
+from chirplidar.geometry import pointing
 from chirplidar.mission import measure, runner, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
@@ -133,9 +133,9 @@ def test_zero_doppler_steering_nulls_every_across_track_beam():
     to a climbing velocity."""
     v = np.array([[7600.0, 0.0, 16.5], [7000.0, 300.0, -40.0]])
     up = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
-    beams = P.paired_beams_across_track(6.65e-3, 1.8e-4)
-    att = P.zero_doppler_attitude(None, v, up)
-    d = P.beam_directions(v / np.linalg.norm(v, axis=1, keepdims=True), up, att, beams)
+    beams = pointing.paired_beams_across_track(6.65e-3, 1.8e-4)
+    att = pointing.zero_doppler_attitude(None, v, up)
+    d = pointing.beam_directions(v / np.linalg.norm(v, axis=1, keepdims=True), up, att, beams)
     assert np.max(np.abs(np.einsum("nj,nbj->nb", v, d))) < 1e-9
     assert float(att.pitch_rad[0]) == pytest.approx(np.arctan2(16.5, 7600.0), rel=1e-12)
 

@@ -6,19 +6,10 @@ import numpy as np
 import pytest
 
 from chirplidar.geometry import raycast
-from chirplidar.geometry.raycast import (
-    EmbreeUnavailableWarning,
-    bench_raycast,
-    cast_rays,
-    footprint_returns,
-    footprint_subrays,
-)
-from chirplidar.geometry.terrain import (
-    MATERIAL_CODES,
-    Terrain,
-    flat_plane,
-    sloped_plane,
-)
+from chirplidar.geometry.footprints import footprint_returns, footprint_subrays
+from chirplidar.geometry.raycast import EmbreeUnavailableWarning, bench_raycast, cast_rays
+from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
+from chirplidar.geometry.terrain import MATERIAL_CODES, Terrain
 
 
 def _dir(off_nadir_rad, azimuth_rad=0.0):

@@ -13,7 +13,7 @@ import trimesh
 
 from chirplidar.atmosphere.turbulence import fried_parameter
 from chirplidar.config.loader import ConfigError
-from chirplidar.geometry import terrain as terrain_mod
+from chirplidar.geometry import synthetic_terrain
 from chirplidar.geometry.frames import geodetic_to_projected, projected_to_geodetic
 from chirplidar.geometry.terrain import MATERIAL_CODES, MATERIAL_NAMES
 from chirplidar.mission import scene as scene_mod
@@ -480,7 +480,7 @@ def test_second_load_reads_cache(tmp_path, monkeypatch):
     def fail(*args, **kwargs):
         raise AssertionError("the generator ran although the heightfield is cached")
 
-    monkeypatch.setattr(terrain_mod, "synthetic_ice_sheet_heightfield", fail)
+    monkeypatch.setattr(synthetic_terrain, "synthetic_ice_sheet_heightfield", fail)
     second = load_scene(p, cache_dir=cache)
     assert second.cache_hit and second.cache_file == first.cache_file
     np.testing.assert_array_equal(second.terrain.mesh.vertices, first.terrain.mesh.vertices)

@@ -5,16 +5,18 @@ import pytest
 import trimesh
 
 from chirplidar.geometry.raycast import cast_rays
+from chirplidar.geometry.synthetic_terrain import (
+    flat_plane,
+    sloped_plane,
+    synthetic_ice_sheet,
+    vialov_height,
+)
 from chirplidar.geometry.terrain import (
     MATERIAL_CODES,
     MATERIAL_NAMES,
     Terrain,
-    flat_plane,
     material_code,
     material_name,
-    sloped_plane,
-    synthetic_ice_sheet,
-    vialov_height,
 )
 from chirplidar.target.materials import MATERIALS
 
@@ -295,7 +297,7 @@ def test_from_dem_nodata_modes(tmp_path):
 
 
 def test_heightfield_functions_match_terrain_builders():
-    from chirplidar.geometry.terrain import synthetic_ice_sheet_heightfield
+    from chirplidar.geometry.synthetic_terrain import synthetic_ice_sheet_heightfield
 
     x, y, z, codes = synthetic_ice_sheet_heightfield(EXTENT, 200.0, np.random.default_rng(2),
                                                      **KW)

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from chirplidar.geometry.terrain import sloped_plane
+from chirplidar.geometry.synthetic_terrain import sloped_plane
 from chirplidar.mission.results import build_dataset
 from chirplidar.viz import scene3d
 from chirplidar.viz.scene3d import auto_vertical_exaggeration, render_track

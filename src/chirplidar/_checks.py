@@ -46,13 +46,22 @@ def real_array(name: str, value) -> np.ndarray:
         arr = np.asarray(value)
     except (TypeError, ValueError) as exc:  # ragged input
         raise ValueError(f"{name} must be a numeric array: {exc}") from None
-    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
-                                 or np.issubdtype(arr.dtype, np.floating)):
+    if arr.dtype == bool or not (
+        np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+    ):
         raise ValueError(f"{name} must be real-valued, got dtype {arr.dtype}")
     arr = arr.astype(float)
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite (no NaN or inf)")
     return arr
+
+
+def time_array(name: str, value) -> np.ndarray:
+    """A finite 1-D real array of times (s) as float64."""
+    t = real_array(name, value)
+    if t.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array of times, got shape {t.shape}")
+    return t
 
 
 def non_negative_array(name: str, value) -> np.ndarray:
@@ -98,8 +107,10 @@ def count(name: str, value) -> int:
 
 def generator(name: str, value) -> np.random.Generator:
     if not isinstance(value, np.random.Generator):
-        raise ValueError(f"{name} must be a numpy.random.Generator (no global random state), "
-                         f"got {type(value).__name__}")
+        raise ValueError(
+            f"{name} must be a numpy.random.Generator (no global random state), "
+            f"got {type(value).__name__}"
+        )
     return value
 
 
@@ -153,6 +164,8 @@ def writable_file(option: str, path, suffix: str, *, make_parents: bool = False)
         with tempfile.NamedTemporaryFile(dir=folder, prefix=".chirplidar-check-"):
             pass
     except OSError as exc:
-        raise ValueError(f"{option} {path}: cannot write in {folder} (creating a file "
-                          f"there fails: {exc.strerror or exc})") from None
+        raise ValueError(
+            f"{option} {path}: cannot write in {folder} (creating a file "
+            f"there fails: {exc.strerror or exc})"
+        ) from None
     return path

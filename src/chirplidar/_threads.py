@@ -23,5 +23,5 @@ def single_threaded_blas():
 
     with _LOCK:
         if _CONTROLLER is None:
-            _CONTROLLER = ThreadpoolController()   # inspects the loaded libraries once (~8 ms)
+            _CONTROLLER = ThreadpoolController()  # inspects the loaded libraries once (~8 ms)
     return _CONTROLLER.limit(limits=1, user_api="blas")

@@ -24,7 +24,6 @@ from ._checks import out, real_array
 from .units import OMEGA_EARTH_RAD_S, WGS84_A_M  # noqa: F401  (re-exported)
 
 
-
 def _vectors(name: str, value) -> np.ndarray:
     arr = real_array(name, value)
     if arr.ndim == 0 or arr.shape[-1] != 3:
@@ -57,8 +56,13 @@ def earth_rotation_velocity_mps(position_m):
     return np.cross(omega, r)
 
 
-def line_of_sight_velocity_mps(platform_velocity_mps, pointing_unit, target_velocity_mps=None,
-                               earth_rotation=False, position_m=None):
+def line_of_sight_velocity_mps(
+    platform_velocity_mps,
+    pointing_unit,
+    target_velocity_mps=None,
+    earth_rotation=False,
+    position_m=None,
+):
     """Closing velocity along the beam, (v_platform - v_target) . u (m/s) = -(range rate).
 
     platform_velocity_mps: (3,) or (n_shots, 3), m/s; pointing_unit: unit vector from the
@@ -90,8 +94,9 @@ def line_of_sight_velocity_mps(platform_velocity_mps, pointing_unit, target_velo
     try:
         v_los = np.sum(rel * u, axis=-1)
     except ValueError:
-        raise ValueError(f"velocity and pointing shapes do not broadcast: {rel.shape}, "
-                         f"{u.shape}") from None
+        raise ValueError(
+            f"velocity and pointing shapes do not broadcast: {rel.shape}, {u.shape}"
+        ) from None
     return out(v_los)
 
 
@@ -121,8 +126,7 @@ def homodyne_doppler_spectrum_lines(f_beat_hz, f_doppler_hz) -> DopplerLines:
     fr, fd = np.broadcast_arrays(fr, fd)
     ad = np.abs(fd)
     amb = ad >= fr
-    return DopplerLines(out(np.abs(fr - ad)), out(fr + ad),
-                        bool(amb) if amb.ndim == 0 else amb)
+    return DopplerLines(out(np.abs(fr - ad)), out(fr + ad), bool(amb) if amb.ndim == 0 else amb)
 
 
 @dataclass(frozen=True)

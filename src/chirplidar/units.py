@@ -14,9 +14,9 @@ BOLTZMANN_J_K = 1.380_649e-23
 
 # The Earth: WGS-84 defining parameters (NGA.STND.0036 / NIMA TR8350.2). The IERS mean sidereal
 # rate 7.2921158553e-5 rad/s differs from the WGS-84 rotation rate by 1e-7 relative.
-WGS84_A_M = 6_378_137.0                 # semi-major (equatorial) axis
-WGS84_F = 1.0 / 298.257_223_563         # flattening
-OMEGA_EARTH_RAD_S = 7.292_115e-5        # angular velocity
+WGS84_A_M = 6_378_137.0  # semi-major (equatorial) axis
+WGS84_F = 1.0 / 298.257_223_563  # flattening
+OMEGA_EARTH_RAD_S = 7.292_115e-5  # angular velocity
 
 
 def db_to_ratio(db):
@@ -40,4 +40,6 @@ def power_dbm(power_w):
 
 def responsivity_a_per_w(quantum_efficiency: float, wavelength_m: float) -> float:
     """R = eta q / (h nu), thesis eq. 2.4.17."""
-    return quantum_efficiency * ELEMENTARY_CHARGE_C * wavelength_m / (PLANCK_J_S * SPEED_OF_LIGHT_M_S)
+    return (
+        quantum_efficiency * ELEMENTARY_CHARGE_C * wavelength_m / (PLANCK_J_S * SPEED_OF_LIGHT_M_S)
+    )

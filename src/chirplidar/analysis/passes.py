@@ -37,8 +37,8 @@ from shapely.geometry import LineString, Point, box, shape
 from .. import _checks
 from ..geometry import earth_orientation as eo
 from ..geometry import frames
-from ..geometry.platform import (Attitude, BeamPattern, TleOrbit, beam_directions,
-                                 zero_doppler_attitude)
+from ..geometry.orbits import TleOrbit
+from ..geometry.pointing import Attitude, BeamPattern, beam_directions, zero_doppler_attitude
 from ..geometry.sun import sun_elevation_deg
 
 __all__ = ["EpochOrbit", "OrbitSource", "Pass", "Region", "find_passes", "format_passes",

@@ -246,7 +246,7 @@ def _search_lines(evaluate, key: str, combo: dict, req: Requirement,
 
 def _extent_across(config) -> float:
     """Width [m] of the survey polygon across its lines (what the lawnmower's lines share)."""
-    from ..geometry.platform import lawnmower_width
+    from ..geometry.paths import lawnmower_width
 
     _, sec = _lawnmower_section(config)
     return lawnmower_width(sec.survey_polygon_m, math.radians(sec.heading_deg))
@@ -336,7 +336,7 @@ def _vertex_indices(line: np.ndarray, kept: np.ndarray) -> np.ndarray:
 
 def _lines_lonlat(config, scene, kind: str, epsg: int) -> list:
     from ..geometry import frames
-    from ..geometry.platform import lawnmower_lines
+    from ..geometry.paths import lawnmower_lines
     from ..mission.survey import survey_polygon_xy
 
     _, sec = _lawnmower_section(config)

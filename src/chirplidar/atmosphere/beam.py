@@ -23,8 +23,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
-from ._checks import positive, real_scalar
-from .turbulence import _cn2_array, _length_array, _scalar_or_array, _wavenumber, rytov_variance
+from ._checks import (
+    cn2_array,
+    path_length_array,
+    positive,
+    real_scalar,
+    scalar_or_array,
+    wavenumber,
+)
+from .turbulence import rytov_variance
 
 
 def _focus(focus_m) -> float:
@@ -34,27 +41,33 @@ def _focus(focus_m) -> float:
     return f
 
 
-def gaussian_beam_parameters(w0_m: float, wavelength_m: float, path_length_m, *,
-                             focus_m: float = np.inf) -> dict:
+def gaussian_beam_parameters(
+    w0_m: float, wavelength_m: float, path_length_m, *, focus_m: float = np.inf
+) -> dict:
     """Andrews & Phillips Gaussian-beam parameters (dimensionless) and the free-space radius W (m).
 
     Returns a dict with keys ``theta0``, ``lambda0``, ``theta``, ``lambda_``, ``w_m`` (floats for
     scalar ``path_length_m``, else arrays of its shape).
     """
     w0 = positive("w0_m", w0_m)
-    k = _wavenumber(wavelength_m)
-    length = _length_array(path_length_m)
+    k = wavenumber(wavelength_m)
+    length = path_length_array(path_length_m)
     f0 = _focus(focus_m)
     theta0 = 1.0 - length / f0
     lambda0 = 2.0 * length / (k * w0 * w0)
-    q = theta0 ** 2 + lambda0 ** 2
-    return {"theta0": _scalar_or_array(theta0), "lambda0": _scalar_or_array(lambda0),
-            "theta": _scalar_or_array(theta0 / q), "lambda_": _scalar_or_array(lambda0 / q),
-            "w_m": _scalar_or_array(w0 * np.sqrt(q))}
+    q = theta0**2 + lambda0**2
+    return {
+        "theta0": scalar_or_array(theta0),
+        "lambda0": scalar_or_array(lambda0),
+        "theta": scalar_or_array(theta0 / q),
+        "lambda_": scalar_or_array(lambda0 / q),
+        "w_m": scalar_or_array(w0 * np.sqrt(q)),
+    }
 
 
-def long_term_beam_radius(w0_m: float, wavelength_m: float, path_length_m, cn2, *,
-                          focus_m: float = np.inf):
+def long_term_beam_radius(
+    w0_m: float, wavelength_m: float, path_length_m, cn2, *, focus_m: float = np.inf
+):
     """Long-term (time-averaged) 1/e^2 beam radius W_LT in m, weak fluctuations (A&P Ch. 6).
 
     W_LT = W sqrt(1 + 1.33 sigma_R^2 Lambda^(5/6)). Raises ValueError if sigma_R^2 >= 1 (outside
@@ -63,16 +76,19 @@ def long_term_beam_radius(w0_m: float, wavelength_m: float, path_length_m, cn2, 
     p = gaussian_beam_parameters(w0_m, wavelength_m, path_length_m, focus_m=focus_m)
     sigma2 = np.asarray(rytov_variance(cn2, wavelength_m, path_length_m, "plane"))
     if np.any(sigma2 >= 1.0):
-        raise ValueError(f"the plane-wave Rytov variance reaches {sigma2.max():.3g} >= 1: the "
-                         f"weak-fluctuation long-term spread does not apply (reduce cn2 or "
-                         f"path_length_m)")
+        raise ValueError(
+            f"the plane-wave Rytov variance reaches {sigma2.max():.3g} >= 1: the "
+            f"weak-fluctuation long-term spread does not apply (reduce cn2 or "
+            f"path_length_m)"
+        )
     w = np.asarray(p["w_m"])
     lam = np.asarray(p["lambda_"])
-    return _scalar_or_array(w * np.sqrt(1.0 + 1.33 * sigma2 * lam ** (5.0 / 6.0)))
+    return scalar_or_array(w * np.sqrt(1.0 + 1.33 * sigma2 * lam ** (5.0 / 6.0)))
 
 
-def beam_wander_variance(w0_m: float, wavelength_m: float, path_length_m, cn2, *,
-                         focus_m: float = np.inf):
+def beam_wander_variance(
+    w0_m: float, wavelength_m: float, path_length_m, cn2, *, focus_m: float = np.inf
+):
     """Beam-wander variance <r_c^2> in m^2 (A&P Ch. 6, infinite outer scale).
 
     <r_c^2> = 2.42 Cn2 L^3 W0^(-1/3) 2F1(1/3, 1; 4; 1 - |Theta0|). ``wavelength_m`` enters only
@@ -80,9 +96,9 @@ def beam_wander_variance(w0_m: float, wavelength_m: float, path_length_m, cn2, *
     Float for scalar inputs, else array (broadcast).
     """
     w0 = positive("w0_m", w0_m)
-    _wavenumber(wavelength_m)
-    length = _length_array(path_length_m)
-    c = _cn2_array(cn2)
+    wavenumber(wavelength_m)
+    length = path_length_array(path_length_m)
+    c = cn2_array(cn2)
     theta0 = 1.0 - length / _focus(focus_m)
     hyp = special.hyp2f1(1.0 / 3.0, 1.0, 4.0, 1.0 - np.abs(theta0))
-    return _scalar_or_array(2.42 * c * length ** 3 * w0 ** (-1.0 / 3.0) * hyp)
+    return scalar_or_array(2.42 * c * length**3 * w0 ** (-1.0 / 3.0) * hyp)

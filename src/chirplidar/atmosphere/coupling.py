@@ -54,6 +54,7 @@ _SCREEN_BYTES = 1 << 25  # screens generated per batch: about 32 MiB
 
 def _optics():
     from chirplidar import optics  # imported lazily: the atmosphere package stands alone
+
     return optics
 
 
@@ -77,17 +78,25 @@ def _structure_function(d_over_r0: float, l0_over_d: float):
     """Phase structure function of separation rho (units of D), rad^2."""
     if np.isinf(l0_over_d):
         return lambda rho: von_karman_structure_function(np.asarray(rho, float), 1.0 / d_over_r0)
-    return lambda rho: von_karman_structure_function(np.asarray(rho, float), 1.0 / d_over_r0,
-                                                     l0_over_d)
+    return lambda rho: von_karman_structure_function(
+        np.asarray(rho, float), 1.0 / d_over_r0, l0_over_d
+    )
 
 
-def turbulent_coupling_samples(d_over_r0: float, beta: float | None = None,
-                               obstruction: float = 0.0, *, samples: int = 200,
-                               rng: np.random.Generator, n: int = 64, subharmonics: bool = True,
-                               subharmonic_levels: int = COUPLING_SUBHARMONIC_LEVELS,
-                               screen_factor: int = 2,
-                               outer_scale_over_d: float = np.inf,
-                               min_pixels_per_r0: float = 4.0) -> np.ndarray:
+def turbulent_coupling_samples(
+    d_over_r0: float,
+    beta: float | None = None,
+    obstruction: float = 0.0,
+    *,
+    samples: int = 200,
+    rng: np.random.Generator,
+    n: int = 64,
+    subharmonics: bool = True,
+    subharmonic_levels: int = COUPLING_SUBHARMONIC_LEVELS,
+    screen_factor: int = 2,
+    outer_scale_over_d: float = np.inf,
+    min_pixels_per_r0: float = 4.0,
+) -> np.ndarray:
     """Per-sample fiber coupling efficiencies through random phase screens (the fading distribution).
 
     Parameters
@@ -123,35 +132,56 @@ def turbulent_coupling_samples(d_over_r0: float, beta: float | None = None,
         raise ValueError(f"min_pixels_per_r0 must be >= 1 (r0 >= one pixel), got {px}")
     need = int(2 * np.ceil(0.5 * px * x))
     if n < need:
-        warnings.warn(f"D/r0 = {x:g} needs n >= {need} pupil samples for {px:g} per r0; "
-                      f"n raised from {n} to {need}", ResolutionWarning, stacklevel=2)
+        warnings.warn(
+            f"D/r0 = {x:g} needs n >= {need} pupil samples for {px:g} per r0; "
+            f"n raised from {n} to {need}",
+            ResolutionWarning,
+            stacklevel=2,
+        )
         n = need
     optics = _optics()
     big = factor * n
     tiles = factor * factor
     screens_needed = -(-samples // tiles)
-    per_batch = max(2, min(screens_needed + screens_needed % 2,
-                           2 * (_SCREEN_BYTES // (16 * big * big))))
+    per_batch = max(
+        2, min(screens_needed + screens_needed % 2, 2 * (_SCREEN_BYTES // (16 * big * big)))
+    )
     out = np.empty(screens_needed * tiles)
     done = 0
     while done < screens_needed:
         k = min(per_batch, screens_needed - done)
-        screens = phase_screens(k, big, 1.0 / n, 1.0 / x, outer_scale_m=l0,
-                                subharmonics=subharmonics, subharmonic_levels=subharmonic_levels,
-                                rng=rng)
+        screens = phase_screens(
+            k,
+            big,
+            1.0 / n,
+            1.0 / x,
+            outer_scale_m=l0,
+            subharmonics=subharmonics,
+            subharmonic_levels=subharmonic_levels,
+            rng=rng,
+        )
         # (k, factor, n, factor, n) -> (k, factor, factor, n, n): the non-overlapping tiles.
         cut = screens.reshape(k, factor, n, factor, n).transpose(0, 1, 3, 2, 4)
         cut = cut.reshape(k * tiles, n, n)
         # Batched form of optics.coupling_efficiency(b, alpha, method="numeric", pupil_phase=cut[i]).
-        out[done * tiles:(done + k) * tiles] = optics.pupil_field_coupling(np.exp(1j * cut), b,
-                                                                           alpha)
+        out[done * tiles : (done + k) * tiles] = optics.pupil_field_coupling(
+            np.exp(1j * cut), b, alpha
+        )
         done += k
     return out[:samples]
 
 
-def turbulent_coupling(d_over_r0: float, beta: float | None = None, obstruction: float = 0.0, *,
-                       samples: int = 200, rng: np.random.Generator, n: int = 64,
-                       subharmonics: bool = True, **kwargs) -> float:
+def turbulent_coupling(
+    d_over_r0: float,
+    beta: float | None = None,
+    obstruction: float = 0.0,
+    *,
+    samples: int = 200,
+    rng: np.random.Generator,
+    n: int = 64,
+    subharmonics: bool = True,
+    **kwargs,
+) -> float:
     """Monte Carlo mean fiber coupling efficiency through phase-only turbulence (float in [0, 1]).
 
     The mean of ``turbulent_coupling_samples`` (same arguments; extra keywords are passed on).
@@ -159,9 +189,20 @@ def turbulent_coupling(d_over_r0: float, beta: float | None = None, obstruction:
     1.1-1.3), so the relative standard error is about 1.2 / sqrt(samples) (a little more because
     tiles of one screen are correlated; see ``grouped_standard_error``).
     """
-    return float(np.mean(turbulent_coupling_samples(d_over_r0, beta, obstruction, samples=samples,
-                                                    rng=rng, n=n, subharmonics=subharmonics,
-                                                    **kwargs)))
+    return float(
+        np.mean(
+            turbulent_coupling_samples(
+                d_over_r0,
+                beta,
+                obstruction,
+                samples=samples,
+                rng=rng,
+                n=n,
+                subharmonics=subharmonics,
+                **kwargs,
+            )
+        )
+    )
 
 
 def grouped_standard_error(values, group: int) -> float:
@@ -177,12 +218,17 @@ def grouped_standard_error(values, group: int) -> float:
     return float(m.std(ddof=1) / np.sqrt(m.size))
 
 
-def turbulent_coupling_screen_expectation(d_over_r0: float, beta: float | None = None,
-                                          obstruction: float = 0.0, *, n: int = 64,
-                                          subharmonics: bool = True,
-                                          subharmonic_levels: int = COUPLING_SUBHARMONIC_LEVELS,
-                                          screen_factor: int = 2,
-                                          outer_scale_over_d: float = np.inf) -> float:
+def turbulent_coupling_screen_expectation(
+    d_over_r0: float,
+    beta: float | None = None,
+    obstruction: float = 0.0,
+    *,
+    n: int = 64,
+    subharmonics: bool = True,
+    subharmonic_levels: int = COUPLING_SUBHARMONIC_LEVELS,
+    screen_factor: int = 2,
+    outer_scale_over_d: float = np.inf,
+) -> float:
     """Exact expectation of the Monte Carlo estimator ``turbulent_coupling`` (no sampling noise).
 
     The screens are Gaussian, so <exp(i (phi_a - phi_b))> = exp(-D_gen / 2) with D_gen the
@@ -208,16 +254,27 @@ def turbulent_coupling_screen_expectation(d_over_r0: float, beta: float | None =
     acorr = np.fft.irfft2((spec * spec.conj()).real, s=(2 * n, 2 * n))
     lags = np.arange(-(n - 1), n)
     a = acorr[np.ix_(lags % (2 * n), lags % (2 * n))]
-    d = screen_structure_function_lattice(n - 1, factor * n, 1.0 / n, 1.0 / x, outer_scale_m=l0,
-                                          subharmonics=subharmonics,
-                                          subharmonic_levels=subharmonic_levels)
+    d = screen_structure_function_lattice(
+        n - 1,
+        factor * n,
+        1.0 / n,
+        1.0 / x,
+        outer_scale_m=l0,
+        subharmonics=subharmonics,
+        subharmonic_levels=subharmonic_levels,
+    )
     eta_plane = float(optics.pupil_field_coupling(np.ones((n, n)), b, alpha))
     return float(eta_plane * np.sum(a * np.exp(-0.5 * d)) / np.sum(a))
 
 
-def turbulent_coupling_exact(d_over_r0: float, beta: float | None = None,
-                             obstruction: float = 0.0, *, outer_scale_over_d: float = np.inf,
-                             n: int = MEAN_N) -> float:
+def turbulent_coupling_exact(
+    d_over_r0: float,
+    beta: float | None = None,
+    obstruction: float = 0.0,
+    *,
+    outer_scale_over_d: float = np.inf,
+    n: int = MEAN_N,
+) -> float:
     """Deterministic mean coupling <eta> (mutual-coherence integral, no table), float in [0, 1]."""
     x = _d_over_r0(d_over_r0)
     b, alpha = _beta_obstruction(beta, obstruction)
@@ -230,16 +287,25 @@ def turbulent_coupling_exact(d_over_r0: float, beta: float | None = None,
 def _mean_table(beta: float, alpha: float, l0: float, n: int):
     optics = _optics()
     eta0 = float(optics.coupling_mutual_coherence(beta, alpha, lambda rho: 0.0 * rho, n=n))
-    eta = np.array([optics.coupling_mutual_coherence(beta, alpha, _structure_function(x, l0), n=n)
-                    for x in TABLE_D_OVER_R0])
+    eta = np.array(
+        [
+            optics.coupling_mutual_coherence(beta, alpha, _structure_function(x, l0), n=n)
+            for x in TABLE_D_OVER_R0
+        ]
+    )
     if np.any(eta <= 0.0):
         raise ValueError("mean coupling table underflowed (D/r0 too large for float64)")
     spline = PchipInterpolator(np.log(TABLE_D_OVER_R0), np.log(eta), extrapolate=False)
     return eta0, eta, spline
 
 
-def turbulent_coupling_mean(d_over_r0, beta: float | None = None, obstruction: float = 0.0, *,
-                            outer_scale_over_d: float = np.inf):
+def turbulent_coupling_mean(
+    d_over_r0,
+    beta: float | None = None,
+    obstruction: float = 0.0,
+    *,
+    outer_scale_over_d: float = np.inf,
+):
     """Mean fiber coupling through phase-only turbulence from a cached table (fast path for missions).
 
     Parameters
@@ -268,7 +334,8 @@ def turbulent_coupling_mean(d_over_r0, beta: float | None = None, obstruction: f
     xc = np.clip(x, x_lo, x_hi)
     out = np.exp(spline(np.log(xc)))
     small = x < x_lo
-    out = np.where(small, eta0 - (eta0 - eta[0]) * (np.where(small, x, x_lo) / x_lo) ** (5 / 3),
-                   out)
+    out = np.where(
+        small, eta0 - (eta0 - eta[0]) * (np.where(small, x, x_lo) / x_lo) ** (5 / 3), out
+    )
     out = np.where(x > x_hi, eta[-1] * (x_hi / np.where(x > x_hi, x, x_hi)) ** 2, out)
     return float(out) if out.ndim == 0 else out

@@ -57,8 +57,8 @@ def _stencil(n: int, depth_factor: int):
     pts = [(lag, j) for lag in (1, 2, 3) for j in range(n)]
     k = 2
     last = 3
-    while 2 ** k + 1 < 2 * n:
-        lag = 2 ** k + 1
+    while 2**k + 1 < 2 * n:
+        lag = 2**k + 1
         cols = np.unique(np.append(np.arange(0, n, 2 ** (k - 1)), n - 1))
         pts += [(lag, int(j)) for j in cols]
         last = lag
@@ -88,8 +88,10 @@ def _ar_matrices(n: int, dx: float, r0: float, l0: float, depth_factor: int, cou
     czz = _cov(old, old, dx, r0, l0)
     cxz = _cov(new, old, dx, r0, l0)
     cxx = _cov(new, new, dx, r0, l0)
-    hint = (f"for outer_scale_m = {l0:g} m, r0_m = {r0:g} m, dx_m = {dx:g} m (outer scale too large "
-            f"for the grid); reduce outer_scale_m or increase dx_m")
+    hint = (
+        f"for outer_scale_m = {l0:g} m, r0_m = {r0:g} m, dx_m = {dx:g} m (outer scale too large "
+        f"for the grid); reduce outer_scale_m or increase dx_m"
+    )
     try:
         factor = linalg.cho_factor(czz, lower=True, check_finite=True)
     except linalg.LinAlgError:
@@ -125,23 +127,34 @@ class MovingScreen:
     along the flight direction (row 0 the oldest), axis 1 across track.
     """
 
-    def __init__(self, n: int, dx_m: float, r0_m: float, outer_scale_m: float, *,
-                 rng: np.random.Generator, depth_factor: int = 4):
+    def __init__(
+        self,
+        n: int,
+        dx_m: float,
+        r0_m: float,
+        outer_scale_m: float,
+        *,
+        rng: np.random.Generator,
+        depth_factor: int = 4,
+    ):
         self.n = integer("n", n, 4)
         self.dx_m = positive("dx_m", dx_m)
         self.r0_m = positive("r0_m", r0_m)
         l0 = real_scalar("outer_scale_m", outer_scale_m, allow_inf=True)
         if not np.isfinite(l0) or l0 <= 0.0:
-            raise ValueError(f"outer_scale_m must be finite and > 0 m for a MovingScreen (the "
-                             f"Kolmogorov covariance does not exist; use an outer scale much "
-                             f"larger than the aperture), got {outer_scale_m!r}")
+            raise ValueError(
+                f"outer_scale_m must be finite and > 0 m for a MovingScreen (the "
+                f"Kolmogorov covariance does not exist; use an outer scale much "
+                f"larger than the aperture), got {outer_scale_m!r}"
+            )
         self.outer_scale_m = l0
         if self.r0_m < self.dx_m:
             raise ValueError(
                 f"r0_m = {self.r0_m:.3g} m is below the grid step dx_m = {self.dx_m:.3g} m: "
                 f"neighbouring samples would differ by "
                 f"{np.sqrt(kolmogorov_structure_function(self.dx_m, self.r0_m)):.2g} rad rms; "
-                f"use dx_m <= r0_m")
+                f"use dx_m <= r0_m"
+            )
         self.depth_factor = integer("depth_factor", depth_factor, 1)
         self._rng = generator("rng", rng)
         self._stencil = _stencil(self.n, self.depth_factor)
@@ -164,8 +177,9 @@ class MovingScreen:
     def _matrices(self, available_lag: int):
         """A (n, m), B (n, n) and stencil rows for the stencil points with lag <= available_lag."""
         count = int(np.sum(self._stencil[:, 0] <= available_lag))
-        return _ar_matrices(self.n, self.dx_m, self.r0_m, self.outer_scale_m, self.depth_factor,
-                            count)
+        return _ar_matrices(
+            self.n, self.dx_m, self.r0_m, self.outer_scale_m, self.depth_factor, count
+        )
 
     def _first_row(self):
         pts = np.stack([np.zeros(self.n), np.arange(self.n)], axis=1)
@@ -192,7 +206,7 @@ class MovingScreen:
             else:
                 nxt = self._stencil[self._stencil[:, 0] > self._count, 0].min()
                 chunk = min(rows - i, int(nxt) - self._count)
-            bw = noise[i:i + chunk] @ b.T
+            bw = noise[i : i + chunk] @ b.T
             lags, cols = sel[:, 0], sel[:, 1]
             for t in range(chunk):
                 new_pos = self._count % depth

@@ -54,8 +54,11 @@ from scipy.integrate import quad
 from ._checks import generator, integer, outer_scale, positive
 
 #: c in Phi(f) = c r0^(-5/3) f^(-11/3) (Kolmogorov phase PSD in cycles/m), ~ 0.023.
-PSD_COEFF = float(special.gamma(11 / 6) ** 2 / (2.0 * np.pi ** (11 / 3))
-                  * (24 / 5 * special.gamma(6 / 5)) ** (5 / 6))
+PSD_COEFF = float(
+    special.gamma(11 / 6) ** 2
+    / (2.0 * np.pi ** (11 / 3))
+    * (24 / 5 * special.gamma(6 / 5)) ** (5 / 6)
+)
 #: 6.8839 in D(r) = 6.88 (r/r0)^(5/3) (Fried 1965).
 KOLMOGOROV_SF_COEFF = float(2.0 * (24 / 5 * special.gamma(6 / 5)) ** (5 / 6))
 
@@ -67,6 +70,7 @@ class ResolutionWarning(UserWarning):
 
 
 # --- spectra and structure functions -------------------------------------------------------------
+
 
 def von_karman_psd(f_per_m, r0_m: float, outer_scale_m: float = np.inf):
     """Phase power spectral density Phi(f) in rad^2 m^2 (f in cycles/m), see the module docstring.
@@ -113,14 +117,20 @@ def _one_minus_g(x):
     # 1 - g = G(1-nu) t^(2nu) sum_k t^(2k) / (k! G(k+1+nu)) - G(1-nu) sum_{k>=1} t^(2k) / (k! G(k+1-nu))
     acc = np.zeros_like(xs)
     for k in range(5):
-        acc += (special.gamma(1 - nu) * xs ** (2 * nu + 2 * k)
-                / (special.factorial(k) * special.gamma(k + 1 + nu)))
+        acc += (
+            special.gamma(1 - nu)
+            * xs ** (2 * nu + 2 * k)
+            / (special.factorial(k) * special.gamma(k + 1 + nu))
+        )
         if k >= 1:
-            acc -= (special.gamma(1 - nu) * xs ** (2 * k)
-                    / (special.factorial(k) * special.gamma(k + 1 - nu)))
+            acc -= (
+                special.gamma(1 - nu)
+                * xs ** (2 * k)
+                / (special.factorial(k) * special.gamma(k + 1 - nu))
+            )
     out[small] = acc
     xl = x[~small]
-    out[~small] = 1.0 - 2.0 ** (1.0 / 6.0) / special.gamma(nu) * xl ** nu * special.kv(nu, xl)
+    out[~small] = 1.0 - 2.0 ** (1.0 / 6.0) / special.gamma(nu) * xl**nu * special.kv(nu, xl)
     return out
 
 
@@ -182,17 +192,19 @@ def structure_function_from_psd(r_m, psd) -> np.ndarray:
             return float(psd(u / scale)) * u
 
         # panels: geometric below u = 1 (where an outer scale bends Phi), unit-ish above.
-        edges = np.concatenate([np.geomspace(1e-8, 1.0, 17), np.arange(5.0, u_split, 5.0),
-                                [u_split]])
+        edges = np.concatenate(
+            [np.geomspace(1e-8, 1.0, 17), np.arange(5.0, u_split, 5.0), [u_split]]
+        )
         a = quad(body, 0.0, edges[0], epsabs=0.0, epsrel=1e-9, limit=100)[0]
         for lo, hi in itertools.pairwise(edges):
             a += quad(body, lo, hi, epsabs=0.0, epsrel=1e-9, limit=100)[0]
         b = quad(tail, u_split, np.inf, epsabs=0.0, epsrel=1e-9, limit=200)[0]
-        out.flat[i] = 4.0 * np.pi * (a + b) / scale ** 2
+        out.flat[i] = 4.0 * np.pi * (a + b) / scale**2
     return out.reshape(np.shape(r_m)) if np.ndim(r_m) else out
 
 
 # --- screen synthesis ----------------------------------------------------------------------------
+
 
 def _check_screen_args(n, dx_m, r0_m, outer_scale_m, subharmonic_levels):
     n = integer("n", n, 2)
@@ -204,7 +216,8 @@ def _check_screen_args(n, dx_m, r0_m, outer_scale_m, subharmonic_levels):
         raise ValueError(
             f"r0_m = {r0:.3g} m is below the grid step dx_m = {dx:.3g} m: neighbouring samples "
             f"would differ by {np.sqrt(kolmogorov_structure_function(dx, r0)):.2g} rad rms and the "
-            f"field is aliased; use dx_m <= r0_m (e.g. dx_m = r0_m / 2)")
+            f"field is aliased; use dx_m <= r0_m (e.g. dx_m = r0_m / 2)"
+        )
     return n, dx, r0, l0, levels
 
 
@@ -230,7 +243,7 @@ def _tilt_matched_power(fx, fy, h: float, l0: float) -> np.ndarray:
     fx, fy = np.asarray(fx, dtype=float)[:, None], np.asarray(fy, dtype=float)[:, None]
     sub = (np.arange(_SUBCELLS) + 0.5) / _SUBCELLS - 0.5
     u = (sub[:, None] + 0.5 * _GL_X[None, :] / _SUBCELLS).ravel()  # offsets / h
-    w = np.tile(_GL_W, _SUBCELLS) * (0.5 / _SUBCELLS)             # weights / h
+    w = np.tile(_GL_W, _SUBCELLS) * (0.5 / _SUBCELLS)  # weights / h
     ux, uy = np.meshgrid(u, u)
     ww = np.outer(w, w).ravel()
     px = fx + h * ux.ravel()[None, :]
@@ -254,8 +267,8 @@ def _fft_amplitudes(n: int, dx: float, r0: float, l0: float) -> np.ndarray:
     var = von_karman_psd(np.sqrt(f2), 1.0, l0) * df * df
     k = np.fft.fftfreq(n, 1.0 / n).astype(int)
     low = np.flatnonzero(np.abs(k) <= LOW_CELLS)
-    iy, ix = np.meshgrid(low, low, indexing="ij")
-    iy, ix = iy.ravel(), ix.ravel()
+    gy, gx = np.meshgrid(low, low, indexing="ij")
+    iy, ix = gy.ravel(), gx.ravel()
     keep = (iy != 0) | (ix != 0)
     iy, ix = iy[keep], ix[keep]
     var[iy, ix] = _tilt_matched_power(f[ix], f[iy], df, l0)
@@ -278,7 +291,7 @@ def _subharmonic_modes_r0_1(n: int, dx: float, l0: float, levels: int):
     more than drawing a small screen, and r0 only scales the amplitudes."""
     out = []
     for p in range(1, levels + 1):
-        dfp = 1.0 / (3 ** p * n * dx)
+        dfp = 1.0 / (3**p * n * dx)
         fr = np.array([-1.0, 0.0, 1.0]) * dfp
         fy, fx = np.meshgrid(fr, fr, indexing="ij")
         var = np.zeros((3, 3))
@@ -292,8 +305,9 @@ def _subharmonic_modes_r0_1(n: int, dx: float, l0: float, levels: int):
     return tuple(out)
 
 
-def _complex_screens(k: int, n: int, amp: np.ndarray, sub, x: np.ndarray,
-                     rng: np.random.Generator) -> np.ndarray:
+def _complex_screens(
+    k: int, n: int, amp: np.ndarray, sub, x: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
     """k complex screens (k, n, n); real and imaginary parts are independent phase screens."""
     c = rng.standard_normal((k, n, n)) + 1j * rng.standard_normal((k, n, n))
     c *= amp
@@ -306,17 +320,26 @@ def _complex_screens(k: int, n: int, amp: np.ndarray, sub, x: np.ndarray,
         e = np.exp(2j * np.pi * np.outer(np.concatenate([fr for fr, _ in sub]), x))  # (m, n)
         cs = np.zeros((k, m, m), dtype=complex)
         for p, (_, a) in enumerate(sub):
-            cs[:, 3 * p:3 * p + 3, 3 * p:3 * p + 3] = (
-                rng.standard_normal((k, 3, 3)) + 1j * rng.standard_normal((k, 3, 3))) * a
+            cs[:, 3 * p : 3 * p + 3, 3 * p : 3 * p + 3] = (
+                rng.standard_normal((k, 3, 3)) + 1j * rng.standard_normal((k, 3, 3))
+            ) * a
         low = np.matmul(e.T, cs @ e)
         low -= low.mean(axis=(1, 2), keepdims=True)
         z += low
     return z
 
 
-def phase_screens(count: int, n: int, dx_m: float, r0_m: float, *, outer_scale_m: float = np.inf,
-                  subharmonics: bool = True, subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
-                  rng: np.random.Generator) -> np.ndarray:
+def phase_screens(
+    count: int,
+    n: int,
+    dx_m: float,
+    r0_m: float,
+    *,
+    outer_scale_m: float = np.inf,
+    subharmonics: bool = True,
+    subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """``count`` independent phase screens, (count, n, n) float64 in radians.
 
     Parameters
@@ -348,27 +371,47 @@ def phase_screens(count: int, n: int, dx_m: float, r0_m: float, *, outer_scale_m
         z = _complex_screens(k, n, amp, sub, x, rng)
         both = np.stack([z.real, z.imag], axis=1).reshape(2 * k, n, n)
         take = min(2 * k, count - done)
-        out[done:done + take] = both[:take]
+        out[done : done + take] = both[:take]
         done += take
     return out
 
 
-def phase_screen(n: int, dx_m: float, r0_m: float, *, outer_scale_m: float = np.inf,
-                 subharmonics: bool = True, subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
-                 rng: np.random.Generator) -> np.ndarray:
+def phase_screen(
+    n: int,
+    dx_m: float,
+    r0_m: float,
+    *,
+    outer_scale_m: float = np.inf,
+    subharmonics: bool = True,
+    subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """One n x n phase screen in radians (float64, pitch dx_m); see ``phase_screens``.
 
     Raises ValueError when r0_m < dx_m (the hard case "r0 far below the grid step").
     """
-    return phase_screens(1, n, dx_m, r0_m, outer_scale_m=outer_scale_m,
-                         subharmonics=subharmonics, subharmonic_levels=subharmonic_levels,
-                         rng=rng)[0]
+    return phase_screens(
+        1,
+        n,
+        dx_m,
+        r0_m,
+        outer_scale_m=outer_scale_m,
+        subharmonics=subharmonics,
+        subharmonic_levels=subharmonic_levels,
+        rng=rng,
+    )[0]
 
 
-def expected_screen_structure_function(r_m, n: int, dx_m: float, r0_m: float, *,
-                                       outer_scale_m: float = np.inf, subharmonics: bool = True,
-                                       subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS
-                                       ) -> np.ndarray:
+def expected_screen_structure_function(
+    r_m,
+    n: int,
+    dx_m: float,
+    r0_m: float,
+    *,
+    outer_scale_m: float = np.inf,
+    subharmonics: bool = True,
+    subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
+) -> np.ndarray:
     """Exact ensemble structure function (rad^2) of ``phase_screens`` along a grid axis.
 
     E[(phi(x + r) - phi(x))^2] = sum over the synthesised modes of 2 Phi(f) df^2 (1 - cos 2 pi f_x r):
@@ -384,16 +427,23 @@ def expected_screen_structure_function(r_m, n: int, dx_m: float, r0_m: float, *,
     out = 2.0 * np.sum(col * (1.0 - np.cos(2.0 * np.pi * np.multiply.outer(r, fx))), axis=-1)
     if subharmonics:
         for fr, a in _subharmonic_modes(n, dx, r0, l0, levels):
-            col = (a ** 2).sum(axis=0)
-            out = out + 2.0 * np.sum(col * (1.0 - np.cos(2.0 * np.pi * np.multiply.outer(r, fr))),
-                                     axis=-1)
+            col = (a**2).sum(axis=0)
+            out = out + 2.0 * np.sum(
+                col * (1.0 - np.cos(2.0 * np.pi * np.multiply.outer(r, fr))), axis=-1
+            )
     return out
 
 
-def screen_structure_function_lattice(max_lag: int, n: int, dx_m: float, r0_m: float, *,
-                                      outer_scale_m: float = np.inf, subharmonics: bool = True,
-                                      subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS
-                                      ) -> np.ndarray:
+def screen_structure_function_lattice(
+    max_lag: int,
+    n: int,
+    dx_m: float,
+    r0_m: float,
+    *,
+    outer_scale_m: float = np.inf,
+    subharmonics: bool = True,
+    subharmonic_levels: int = DEFAULT_SUBHARMONIC_LEVELS,
+) -> np.ndarray:
     """Exact ensemble structure function (rad^2) of ``phase_screens`` on the 2-D lag lattice.
 
     Returns a (2 m + 1, 2 m + 1) float64 array, m = ``max_lag`` (< n), entry [m + dy, m + dx] the
@@ -410,7 +460,7 @@ def screen_structure_function_lattice(max_lag: int, n: int, dx_m: float, r0_m: f
     d = 2.0 * (var.sum() - cov[np.ix_(lags % n, lags % n)])
     if subharmonics:
         for fr, a in _subharmonic_modes(n, dx, r0, l0, levels):
-            v = a ** 2  # [y frequency, x frequency]
+            v = a**2  # [y frequency, x frequency]
             for iy in range(3):
                 for ix in range(3):
                     if v[iy, ix] == 0.0:
@@ -446,5 +496,5 @@ def structure_function_estimate(screens, dx_m: float, max_lag: int):
     for lag in range(1, max_lag + 1):
         dxs = s[..., :, lag:] - s[..., :, :-lag]
         dys = s[..., lag:, :] - s[..., :-lag, :]
-        d[..., lag - 1] = 0.5 * ((dxs ** 2).mean(axis=(-1, -2)) + (dys ** 2).mean(axis=(-1, -2)))
+        d[..., lag - 1] = 0.5 * ((dxs**2).mean(axis=(-1, -2)) + (dys**2).mean(axis=(-1, -2)))
     return np.arange(1, max_lag + 1) * dx, d

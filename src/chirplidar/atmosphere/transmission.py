@@ -33,8 +33,9 @@ def one_way_power_transmission(*, t_atm_field=None, extinction_per_m=None, path_
     t = real_array_or_none("t_atm_field", t_atm_field)
     if t is not None:
         if extinction_per_m is not None or path_length_m is not None:
-            raise ValueError("give either t_atm_field or extinction_per_m with path_length_m, "
-                             "not both")
+            raise ValueError(
+                "give either t_atm_field or extinction_per_m with path_length_m, not both"
+            )
         if np.any((t < 0.0) | (t > 1.0)):
             raise ValueError("t_atm_field must lie in [0, 1] (one-way field transmission)")
         out = t * t
@@ -44,11 +45,12 @@ def one_way_power_transmission(*, t_atm_field=None, extinction_per_m=None, path_
     return beer_lambert_transmission(extinction_per_m, path_length_m)
 
 
-def round_trip_power_transmission(*, t_atm_field=None, extinction_per_m=None,
-                                  path_length_m=None):
+def round_trip_power_transmission(*, t_atm_field=None, extinction_per_m=None, path_length_m=None):
     """Round-trip (monostatic) power transmission: the square of ``one_way_power_transmission``."""
-    one = np.asarray(one_way_power_transmission(t_atm_field=t_atm_field,
-                                                extinction_per_m=extinction_per_m,
-                                                path_length_m=path_length_m))
+    one = np.asarray(
+        one_way_power_transmission(
+            t_atm_field=t_atm_field, extinction_per_m=extinction_per_m, path_length_m=path_length_m
+        )
+    )
     out = one * one
     return float(out) if out.ndim == 0 else out

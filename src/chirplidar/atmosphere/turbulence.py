@@ -23,7 +23,15 @@ from collections.abc import Callable
 import numpy as np
 from scipy.integrate import quad
 
-from ._checks import non_negative, positive, real_scalar, wave_kind
+from ._checks import (
+    cn2_array,
+    non_negative,
+    path_length_array,
+    real_scalar,
+    scalar_or_array,
+    wave_kind,
+    wavenumber,
+)
 
 #: HV-5/7 ground-layer coefficient A (m^-2/3) and rms upper-wind speed (m/s), A&P Ch. 12.
 HV57_GROUND_CN2 = 1.7e-14
@@ -38,13 +46,16 @@ SPHERICAL_WEIGHT = 3.0 / 8.0
 #: r0 = 2.1 rho0 (A&P Ch. 6: rho0 is the 1/e point of the wave-structure-function MCF).
 R0_OVER_RHO0 = 2.1
 
-Cn2Profile = Callable[[float], float]
+#: Height h_m (m) -> Cn^2 (m^-2/3): a float, or a 0-d array, for a scalar height.
+Cn2Profile = Callable[[float], float | np.ndarray]
 
 
 # --- profiles -------------------------------------------------------------------------------------
 
-def cn2_hufnagel_valley(h_m, ground_cn2: float = HV57_GROUND_CN2,
-                        rms_wind_mps: float = HV57_RMS_WIND_MPS):
+
+def cn2_hufnagel_valley(
+    h_m, ground_cn2: float = HV57_GROUND_CN2, rms_wind_mps: float = HV57_RMS_WIND_MPS
+):
     """Hufnagel-Valley Cn^2 profile (A&P Ch. 12):
 
         Cn2(h) = 0.00594 (v/27)^2 (1e-5 h)^10 exp(-h/1000) + 2.7e-16 exp(-h/1500) + A exp(-h/100)
@@ -65,13 +76,17 @@ def cn2_hufnagel_valley(h_m, ground_cn2: float = HV57_GROUND_CN2,
     h = np.asarray(h_m, dtype=float)
     if not np.all(np.isfinite(h)) or np.any(h < 0.0):
         raise ValueError("h_m must be finite altitudes >= 0 m")
-    out = (0.00594 * (v / 27.0) ** 2 * (1e-5 * h) ** 10 * np.exp(-h / 1000.0)
-           + 2.7e-16 * np.exp(-h / 1500.0) + a * np.exp(-h / 100.0))
+    out = (
+        0.00594 * (v / 27.0) ** 2 * (1e-5 * h) ** 10 * np.exp(-h / 1000.0)
+        + 2.7e-16 * np.exp(-h / 1500.0)
+        + a * np.exp(-h / 100.0)
+    )
     return float(out) if out.ndim == 0 else out
 
 
-def hufnagel_valley_profile(ground_cn2: float = HV57_GROUND_CN2,
-                            rms_wind_mps: float = HV57_RMS_WIND_MPS) -> Cn2Profile:
+def hufnagel_valley_profile(
+    ground_cn2: float = HV57_GROUND_CN2, rms_wind_mps: float = HV57_RMS_WIND_MPS
+) -> Cn2Profile:
     """The HV profile as a callable h_m -> Cn^2 (m^-2/3) for the ``*_profile`` path integrals."""
     a = non_negative("ground_cn2", ground_cn2)
     v = non_negative("rms_wind_mps", rms_wind_mps)
@@ -85,29 +100,6 @@ def constant_profile(cn2: float) -> Cn2Profile:
 
 
 # --- constant-Cn^2 closed forms -------------------------------------------------------------------
-
-def _wavenumber(wavelength_m) -> float:
-    return 2.0 * np.pi / positive("wavelength_m", wavelength_m)
-
-
-def _scalar_or_array(x):
-    x = np.asarray(x, dtype=float)
-    return float(x) if x.ndim == 0 else x
-
-
-def _cn2_array(cn2):
-    c = np.asarray(cn2, dtype=float)
-    if not np.all(np.isfinite(c)) or np.any(c <= 0.0):
-        raise ValueError("cn2 must be finite and > 0 m^-2/3 (no turbulence means r0 = inf; "
-                         "skip the turbulence effect instead)")
-    return c
-
-
-def _length_array(path_length_m):
-    length = np.asarray(path_length_m, dtype=float)
-    if not np.all(np.isfinite(length)) or np.any(length <= 0.0):
-        raise ValueError("path_length_m must be finite and > 0 m")
-    return length
 
 
 def fried_parameter(cn2, wavelength_m: float, path_length_m, wave: str = "plane"):
@@ -127,15 +119,15 @@ def fried_parameter(cn2, wavelength_m: float, path_length_m, wave: str = "plane"
     -------
     r0 in metres: float for scalar inputs, else float64 array of the broadcast shape.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     weight = 1.0 if wave_kind(wave) == "plane" else SPHERICAL_WEIGHT
-    c, length = _cn2_array(cn2), _length_array(path_length_m)
-    return _scalar_or_array((FRIED_COEFF * k * k * c * length * weight) ** (-3.0 / 5.0))
+    c, length = cn2_array(cn2), path_length_array(path_length_m)
+    return scalar_or_array((FRIED_COEFF * k * k * c * length * weight) ** (-3.0 / 5.0))
 
 
 def coherence_radius(r0_m):
     """Spatial coherence radius rho0 = r0 / 2.1 (m) (A&P Ch. 6). Float or array like ``r0_m``."""
-    return _scalar_or_array(np.asarray(r0_m, dtype=float) / R0_OVER_RHO0)
+    return scalar_or_array(np.asarray(r0_m, dtype=float) / R0_OVER_RHO0)
 
 
 def rytov_variance(cn2, wavelength_m: float, path_length_m, wave: str = "plane"):
@@ -146,10 +138,10 @@ def rytov_variance(cn2, wavelength_m: float, path_length_m, wave: str = "plane")
 
     Weak fluctuations when the value is below 1. Float for scalar inputs, else array.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     coeff = 1.23 if wave_kind(wave) == "plane" else 0.5
-    c, length = _cn2_array(cn2), _length_array(path_length_m)
-    return _scalar_or_array(coeff * c * k ** (7.0 / 6.0) * length ** (11.0 / 6.0))
+    c, length = cn2_array(cn2), path_length_array(path_length_m)
+    return scalar_or_array(coeff * c * k ** (7.0 / 6.0) * length ** (11.0 / 6.0))
 
 
 # --- slant paths through a profile ----------------------------------------------------------------
@@ -183,8 +175,13 @@ class _SlantPath:
         return r / np.sqrt(r * r - (r0 * np.sin(self.zenith)) ** 2)
 
 
-def slant_path_length(lower_altitude_m: float, upper_altitude_m: float, zenith_angle_rad: float,
-                      *, earth_radius_m: float = EARTH_RADIUS_M) -> float:
+def slant_path_length(
+    lower_altitude_m: float,
+    upper_altitude_m: float,
+    zenith_angle_rad: float,
+    *,
+    earth_radius_m: float = EARTH_RADIUS_M,
+) -> float:
     """Length (m) of the straight ray between two altitudes, zenith angle seen from the lower end.
 
     Spherical Earth of radius ``earth_radius_m`` (numpy.inf: flat Earth, L = dh / cos z).
@@ -210,21 +207,26 @@ def _earth(earth_radius_m) -> float:
     return re
 
 
-def _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m, zenith_angle_rad,
-                   earth_radius_m, weight):
+def _path_integral(
+    cn2_profile, source_altitude_m, receiver_altitude_m, zenith_angle_rad, earth_radius_m, weight
+):
     """int_0^L Cn2(h(s)) weight(s_src, L) ds, s_src = distance from the source (units m^1/3 x w).
 
     The integral runs over altitude (ds = (ds/dh) dh) with the quadrature split at the profile
     breakpoints ``_BREAKS_M``; each piece is scipy.integrate.quad (epsrel 1e-9).
     """
     if not callable(cn2_profile):
-        raise ValueError("cn2_profile must be a callable altitude_m -> Cn^2 (m^-2/3), e.g. "
-                         "hufnagel_valley_profile()")
+        raise ValueError(
+            "cn2_profile must be a callable altitude_m -> Cn^2 (m^-2/3), e.g. "
+            "hufnagel_valley_profile()"
+        )
     hs = non_negative("source_altitude_m", source_altitude_m)
     hr = non_negative("receiver_altitude_m", receiver_altitude_m)
     if hs == hr:
-        raise ValueError("source_altitude_m and receiver_altitude_m must differ (use the "
-                         "constant-Cn^2 functions for horizontal paths)")
+        raise ValueError(
+            "source_altitude_m and receiver_altitude_m must differ (use the "
+            "constant-Cn^2 functions for horizontal paths)"
+        )
     lo, hi = min(hs, hr), max(hs, hr)
     path = _SlantPath(lo, hi, _zenith(zenith_angle_rad), _earth(earth_radius_m))
     length = path.length
@@ -246,19 +248,36 @@ def _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m, zenith_a
     return total, length
 
 
-def cn2_path_integral(cn2_profile: Cn2Profile, *, source_altitude_m: float,
-                      receiver_altitude_m: float, zenith_angle_rad: float = 0.0,
-                      earth_radius_m: float = EARTH_RADIUS_M) -> float:
+def cn2_path_integral(
+    cn2_profile: Cn2Profile,
+    *,
+    source_altitude_m: float,
+    receiver_altitude_m: float,
+    zenith_angle_rad: float = 0.0,
+    earth_radius_m: float = EARTH_RADIUS_M,
+) -> float:
     """Integrated turbulence int_0^L Cn^2(h(s)) ds along the slant path, in m^(1/3)."""
-    total, _ = _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m,
-                              zenith_angle_rad, earth_radius_m, lambda s, length: 1.0)
+    total, _ = _path_integral(
+        cn2_profile,
+        source_altitude_m,
+        receiver_altitude_m,
+        zenith_angle_rad,
+        earth_radius_m,
+        lambda s, length: 1.0,
+    )
     return total
 
 
-def fried_parameter_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
-                            source_altitude_m: float, receiver_altitude_m: float,
-                            zenith_angle_rad: float = 0.0, wave: str = "plane",
-                            earth_radius_m: float = EARTH_RADIUS_M) -> float:
+def fried_parameter_profile(
+    cn2_profile: Cn2Profile,
+    wavelength_m: float,
+    *,
+    source_altitude_m: float,
+    receiver_altitude_m: float,
+    zenith_angle_rad: float = 0.0,
+    wave: str = "plane",
+    earth_radius_m: float = EARTH_RADIUS_M,
+) -> float:
     """Fried parameter r0 (m) at the receiver of a slant path through a Cn^2 profile.
 
         r0 = [0.423 k^2 int_0^L Cn2(s) w(s) ds]^(-3/5),
@@ -281,21 +300,34 @@ def fried_parameter_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
     -------
     r0 in metres (float); numpy.inf if the path carries no turbulence.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     spherical = wave_kind(wave) == "spherical"
-    weight = ((lambda s, length: (s / length) ** (5.0 / 3.0)) if spherical
-              else (lambda s, length: 1.0))
-    total, _ = _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m,
-                              zenith_angle_rad, earth_radius_m, weight)
+    weight = (
+        (lambda s, length: (s / length) ** (5.0 / 3.0)) if spherical else (lambda s, length: 1.0)
+    )
+    total, _ = _path_integral(
+        cn2_profile,
+        source_altitude_m,
+        receiver_altitude_m,
+        zenith_angle_rad,
+        earth_radius_m,
+        weight,
+    )
     if total <= 0.0:
         return float("inf")
     return float((FRIED_COEFF * k * k * total) ** (-3.0 / 5.0))
 
 
-def rytov_variance_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
-                           source_altitude_m: float, receiver_altitude_m: float,
-                           zenith_angle_rad: float = 0.0, wave: str = "plane",
-                           earth_radius_m: float = EARTH_RADIUS_M) -> float:
+def rytov_variance_profile(
+    cn2_profile: Cn2Profile,
+    wavelength_m: float,
+    *,
+    source_altitude_m: float,
+    receiver_altitude_m: float,
+    zenith_angle_rad: float = 0.0,
+    wave: str = "plane",
+    earth_radius_m: float = EARTH_RADIUS_M,
+) -> float:
     """Rytov variance (dimensionless) of a slant path through a Cn^2 profile (A&P Chs. 5, 12).
 
         plane:      sigma_R^2 = 2.25 k^(7/6) int_0^L Cn2(s) (L - s)^(5/6) ds
@@ -305,22 +337,37 @@ def rytov_variance_profile(cn2_profile: Cn2Profile, wavelength_m: float, *,
     (~0.5, spherical) times Cn2 k^(7/6) L^(11/6), i.e. ``rytov_variance``. Arguments as in
     ``fried_parameter_profile``.
     """
-    k = _wavenumber(wavelength_m)
+    k = wavenumber(wavelength_m)
     spherical = wave_kind(wave) == "spherical"
     if spherical:
+
         def weight(s, length):
             return (s / length) ** (5.0 / 6.0) * max(length - s, 0.0) ** (5.0 / 6.0)
     else:
+
         def weight(s, length):
             return max(length - s, 0.0) ** (5.0 / 6.0)
-    total, _ = _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m,
-                              zenith_angle_rad, earth_radius_m, weight)
+
+    total, _ = _path_integral(
+        cn2_profile,
+        source_altitude_m,
+        receiver_altitude_m,
+        zenith_angle_rad,
+        earth_radius_m,
+        weight,
+    )
     return float(2.25 * k ** (7.0 / 6.0) * total)
 
 
-def isoplanatic_angle(cn2_profile: Cn2Profile, wavelength_m: float, *, receiver_altitude_m: float,
-                      source_altitude_m: float, zenith_angle_rad: float = 0.0,
-                      earth_radius_m: float = EARTH_RADIUS_M) -> float:
+def isoplanatic_angle(
+    cn2_profile: Cn2Profile,
+    wavelength_m: float,
+    *,
+    receiver_altitude_m: float,
+    source_altitude_m: float,
+    zenith_angle_rad: float = 0.0,
+    earth_radius_m: float = EARTH_RADIUS_M,
+) -> float:
     """Isoplanatic angle theta0 (rad) seen from the receiver, plane-wave form (Fried 1982; A&P Ch. 12):
 
         theta0 = [2.91 k^2 int_0^L Cn2(s) (L - s)^(5/3) ds]^(-3/5),
@@ -328,10 +375,15 @@ def isoplanatic_angle(cn2_profile: Cn2Profile, wavelength_m: float, *, receiver_
     L - s being the distance of the turbulence from the receiver. HV-5/7 at 0.5 um, ground to space
     at zenith: about 7 urad (the "7" of HV-5/7).
     """
-    k = _wavenumber(wavelength_m)
-    total, _ = _path_integral(cn2_profile, source_altitude_m, receiver_altitude_m,
-                              zenith_angle_rad, earth_radius_m,
-                              lambda s, length: max(length - s, 0.0) ** (5.0 / 3.0))
+    k = wavenumber(wavelength_m)
+    total, _ = _path_integral(
+        cn2_profile,
+        source_altitude_m,
+        receiver_altitude_m,
+        zenith_angle_rad,
+        earth_radius_m,
+        lambda s, length: max(length - s, 0.0) ** (5.0 / 3.0),
+    )
     if total <= 0.0:
         return float("inf")
     return float((2.91 * k * k * total) ** (-3.0 / 5.0))

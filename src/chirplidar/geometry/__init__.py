@@ -1,30 +1,32 @@
 """Geometry: terrain meshes and DEMs, synthetic ice sheets, ray casting and beam footprints.
 
-Frames and projections (ECEF, geodetic, EPSG:3413/3031 grids) are in :mod:`.frames`; platforms,
-paths, orbits and beams in :mod:`.platform`.
+Frames and projections (ECEF, geodetic, EPSG:3413/3031 grids) are in :mod:`.frames`; flight
+paths in :mod:`.paths`, orbits in :mod:`.orbits`, attitude, beams and per-shot geometry in
+:mod:`.pointing`; generated terrain in :mod:`.synthetic_terrain`; ray casting in :mod:`.raycast`
+and beam footprints in :mod:`.footprints`.
 """
 
+from .footprints import FootprintReturns, footprint_returns, footprint_subrays
 from .raycast import (
     EmbreeUnavailableWarning,
-    FootprintReturns,
     RayHits,
     bench_raycast,
     cast_rays,
     embree_available,
-    footprint_returns,
-    footprint_subrays,
+)
+from .synthetic_terrain import (
+    SYNTHETIC_FEATURES,
+    flat_plane,
+    sloped_plane,
+    synthetic_ice_sheet,
+    vialov_height,
 )
 from .terrain import (
     MATERIAL_CODES,
     MATERIAL_NAMES,
-    SYNTHETIC_FEATURES,
     Terrain,
-    flat_plane,
     material_code,
     material_name,
-    sloped_plane,
-    synthetic_ice_sheet,
-    vialov_height,
 )
 
 __all__ = [

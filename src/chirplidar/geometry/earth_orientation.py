@@ -42,7 +42,7 @@ __all__ = [
     "utc_iso",
 ]
 
-MJD_UNIX_EPOCH = 40587.0          # MJD of 1970-01-01T00:00:00 UTC
+MJD_UNIX_EPOCH = 40587.0  # MJD of 1970-01-01T00:00:00 UTC
 _ARCSEC_RAD = np.pi / (180.0 * 3600.0)
 
 
@@ -73,8 +73,9 @@ def utc_iso(value: _dt.datetime) -> str:
 
 def mjd_iso(mjd: float) -> str:
     """:func:`utc_iso` of a Modified Julian Date (UTC); the inverse of :func:`mjd_utc`."""
-    return utc_iso(_dt.datetime.fromtimestamp((float(mjd) - MJD_UNIX_EPOCH) * 86400.0,
-                                              _dt.timezone.utc))
+    return utc_iso(
+        _dt.datetime.fromtimestamp((float(mjd) - MJD_UNIX_EPOCH) * 86400.0, _dt.timezone.utc)
+    )
 
 
 def mjd_utc(value) -> float:
@@ -114,13 +115,18 @@ def table_span_mjd() -> tuple[float, float]:
 def _warn_outside(mjd: np.ndarray) -> None:
     lo, hi = table_span_mjd()
     if mjd.size and (np.min(mjd) < lo or np.max(mjd) > hi):
+
         def day(m):
             return mjd_iso(m)[:10]
+
         bad = float(np.min(mjd)) if np.min(mjd) < lo else float(np.max(mjd))
-        warnings.warn(f"{day(bad)} lies outside the IERS Earth-orientation table shipped with "
-                      f"astropy-iers-data ({day(lo)} .. {day(hi)}): UT1 - UTC and polar motion "
-                      "are held at the table's end (update astropy-iers-data for newer values)",
-                      EarthOrientationWarning, stacklevel=3)
+        warnings.warn(
+            f"{day(bad)} lies outside the IERS Earth-orientation table shipped with "
+            f"astropy-iers-data ({day(lo)} .. {day(hi)}): UT1 - UTC and polar motion "
+            "are held at the table's end (update astropy-iers-data for newer values)",
+            EarthOrientationWarning,
+            stacklevel=3,
+        )
 
 
 def ut1_minus_utc_s(mjd) -> np.ndarray:
@@ -130,7 +136,7 @@ def ut1_minus_utc_s(mjd) -> np.ndarray:
     tm, dut, _, _ = _table()
     i = np.clip(np.searchsorted(tm, m, side="right") - 1, 0, tm.size - 2)
     f = np.clip((m - tm[i]) / (tm[i + 1] - tm[i]), 0.0, 1.0)
-    step = np.abs(dut[i + 1] - dut[i]) > 0.5   # a leap second between the two days
+    step = np.abs(dut[i + 1] - dut[i]) > 0.5  # a leap second between the two days
     return np.where(step, dut[i], dut[i] + f * (dut[i + 1] - dut[i]))[()]
 
 
@@ -145,16 +151,16 @@ def polar_motion_rad(mjd) -> tuple[np.ndarray, np.ndarray]:
 def gmst82_rad(jd_ut1) -> np.ndarray:
     """Greenwich mean sidereal time, IAU-82 (Vallado eq. 3-47; sgp4's ``gstime``) [rad]."""
     t = (np.asarray(jd_ut1, dtype=float) - 2451545.0) / 36525.0
-    sec = (-6.2e-6 * t ** 3 + 0.093104 * t ** 2 + (876600.0 * 3600.0 + 8640184.812866) * t
-           + 67310.54841)
+    sec = -6.2e-6 * t**3 + 0.093104 * t**2 + (876600.0 * 3600.0 + 8640184.812866) * t + 67310.54841
     return np.mod(sec * (np.pi / 180.0) / 240.0, 2.0 * np.pi)[()]
 
 
 def _r3(theta):
     c, s = np.cos(theta), np.sin(theta)
     z, o = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, s, z], -1), np.stack([-s, c, z], -1),
-                     np.stack([z, z, o], -1)], -2)
+    return np.stack(
+        [np.stack([c, s, z], -1), np.stack([-s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
 
 
 def teme_to_itrs(r_teme_m, v_teme_mps, mjd_utc_values, *, polar_motion: bool = True):
@@ -173,7 +179,12 @@ def teme_to_itrs(r_teme_m, v_teme_mps, mjd_utc_values, *, polar_motion: bool = T
     cx, sx, cy, sy = np.cos(xp), np.sin(xp), np.cos(yp), np.sin(yp)
     z = np.zeros_like(cx)
     # W = R1(y_p) R2(x_p) takes ITRS to PEF (Vallado eq. 3-77, 1980 convention); ITRS = W^T PEF.
-    w = np.stack([np.stack([cx, z, -sx], -1),
-                  np.stack([sx * sy, cy, cx * sy], -1),
-                  np.stack([sx * cy, -sy, cx * cy], -1)], -2)
+    w = np.stack(
+        [
+            np.stack([cx, z, -sx], -1),
+            np.stack([sx * sy, cy, cx * sy], -1),
+            np.stack([sx * cy, -sy, cx * cy], -1),
+        ],
+        -2,
+    )
     return np.einsum("nji,nj->ni", w, r_pef), np.einsum("nji,nj->ni", w, v_pef)

@@ -71,6 +71,7 @@ __all__ = [
     "WGS84_E2",
     "WGS84_F",
     "ProjectedRays",
+    "checked_epsg",
     "ecef_to_geodetic",
     "ecef_to_projected",
     "enu_basis",
@@ -96,12 +97,14 @@ _ECEF = 4978
 _GEODETIC = 4979
 
 
-def _epsg(epsg) -> int:
+def checked_epsg(epsg) -> int:
+    """``epsg`` as an int; ValueError unless it is one of ``SUPPORTED_EPSG``."""
     if isinstance(epsg, (bool, np.bool_)) or not isinstance(epsg, (int, np.integer)):
         raise ValueError(f"epsg must be an integer EPSG code, got {epsg!r}")  # noqa: TRY004 (project rule: ValueError)
     if int(epsg) not in SUPPORTED_EPSG:
-        raise ValueError(f"epsg must be one of {SUPPORTED_EPSG} (polar stereographic scene frames),"
-                         f" got {epsg}")
+        raise ValueError(
+            f"epsg must be one of {SUPPORTED_EPSG} (polar stereographic scene frames), got {epsg}"
+        )
     return int(epsg)
 
 
@@ -116,12 +119,13 @@ def _proj(epsg: int) -> Proj:
 
 
 def _arrays(names, values):
-    arrs = [_checks.real_array(n, v) for n, v in zip(names, values)]
+    arrs = [_checks.real_array(n, v) for n, v in zip(names, values, strict=True)]
     try:
         return np.broadcast_arrays(*arrs)
     except ValueError:
-        raise ValueError(f"{', '.join(names)} must have broadcastable shapes, got "
-                         f"{[a.shape for a in arrs]}") from None
+        raise ValueError(
+            f"{', '.join(names)} must have broadcastable shapes, got {[a.shape for a in arrs]}"
+        ) from None
 
 
 def _lat(lat):
@@ -139,7 +143,7 @@ def _transform(src, dst, a, b, c):
 
 def projected_to_geodetic(x, y, z, epsg):
     """Scene frame ``(x, y, z)`` [m, m, m above ellipsoid] -> ``(lat, lon, h)`` [deg, deg, m]."""
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     x, y, z = _arrays(("x", "y", "z"), (x, y, z))
     lon, lat, h = _transform(code, _GEODETIC, x, y, z)
     return lat, lon, h
@@ -147,7 +151,7 @@ def projected_to_geodetic(x, y, z, epsg):
 
 def geodetic_to_projected(lat, lon, h, epsg):
     """``(lat, lon, h)`` [deg, deg, m above ellipsoid] -> scene frame ``(x, y, z)`` [m]."""
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     lat, lon, h = _arrays(("lat", "lon", "h"), (lat, lon, h))
     _lat(lat)
     return _transform(_GEODETIC, code, lon, lat, h)
@@ -214,7 +218,7 @@ def enu_basis(lat, lon) -> np.ndarray:
 
 def scale_factor(x, y, epsg) -> np.ndarray:
     """Point scale factor ``k`` of the conformal scene projection at grid ``(x, y)`` [m]."""
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     x, y = _arrays(("x", "y"), (x, y))
     lat, lon, _ = projected_to_geodetic(x, y, np.zeros_like(x), code)
     f = _proj(code).get_factors(lon.ravel(), lat.ravel())
@@ -256,13 +260,17 @@ def ray_ellipsoid_distance_m(origin_ecef, direction_ecef, height_m=0.0) -> np.nd
         o, d = np.broadcast_arrays(o, d)
         h = np.broadcast_to(h, o.shape[:-1])
     except ValueError:
-        raise ValueError("origin_ecef, direction_ecef and height_m must have broadcastable shapes")
+        raise ValueError(
+            "origin_ecef, direction_ecef and height_m must have broadcastable shapes"
+        ) from None
     s = _ellipsoid_hit(o, d, h)
     if np.any(h != 0.0):
         ok = np.isfinite(s)
         for _ in range(4):
             p = o + s[..., None] * d
-            lat, lon, hh = ecef_to_geodetic(*(np.where(ok[..., None], p, o)[..., i] for i in range(3)))
+            lat, lon, hh = ecef_to_geodetic(
+                *(np.where(ok[..., None], p, o)[..., i] for i in range(3))
+            )
             up = local_up_ecef(lat, lon)
             rate = np.sum(d * up, axis=-1)  # dh/ds
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -323,11 +331,14 @@ def _ray_arrays(origin_name: str, origin, direction_name: str, direction):
     try:
         return np.broadcast_arrays(o, d)
     except ValueError:
-        raise ValueError(f"{origin_name} and {direction_name} must have broadcastable shapes") from None
+        raise ValueError(
+            f"{origin_name} and {direction_name} must have broadcastable shapes"
+        ) from None
 
 
-def rays_projected_from_ecef(origin_ecef, direction_ecef, epsg, *, target_height_m,
-                             entry_height_m=None) -> ProjectedRays:
+def rays_projected_from_ecef(
+    origin_ecef, direction_ecef, epsg, *, target_height_m, entry_height_m=None
+) -> ProjectedRays:
     """Convert ECEF rays (e.g. from a satellite) into scene-frame rays.
 
     origin_ecef, direction_ecef : (..., 3) ECEF origins [m] and unit directions.
@@ -343,7 +354,7 @@ def rays_projected_from_ecef(origin_ecef, direction_ecef, epsg, *, target_height
     that never descend to ``target_height_m`` get ``valid = False`` (finite placeholder rays
     pointing up whose ``range_m`` is inf).
     """
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     o, d = _ray_arrays("origin_ecef", origin_ecef, "direction_ecef", direction_ecef)
     shape = o.shape[:-1]
     h_t = _checks.real_scalar("target_height_m", target_height_m)
@@ -379,7 +390,7 @@ def grid_axes_ecef(origin_m, epsg):
     ellipsoid normal; the projection is conformal so they are orthogonal to each other to
     ~1e-9. Returns ``(origin_ecef, ex, ey, up)``, each ``(..., 3)``.
     """
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     o = _xyz("origin_m", origin_m)
     ex_, ey_ = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
     pts = projected_to_ecef(np.stack([o, o + ex_, o - ex_, o + ey_, o - ey_]), code)
@@ -394,8 +405,9 @@ def grid_axes_ecef(origin_m, epsg):
     return pts[0], axes[0], ey, up
 
 
-def rays_projected_local(origin_m, direction_true, epsg, *, target_height_m=None,
-                         entry_height_m=None) -> ProjectedRays:
+def rays_projected_local(
+    origin_m, direction_true, epsg, *, target_height_m=None, entry_height_m=None
+) -> ProjectedRays:
     """Scene-frame rays from origins in the scene frame and directions in true local metres.
 
     origin_m : (..., 3) scene-frame origins [m] (aircraft, UAV).
@@ -407,17 +419,19 @@ def rays_projected_local(origin_m, direction_true, epsg, *, target_height_m=None
         flat approximation: horizontal components scaled by the scale factor ``k`` at the origin,
         ``metres_per_unit`` converting scene-frame lengths back to true metres.
     """
-    code = _epsg(epsg)
+    code = checked_epsg(epsg)
     o, d = _ray_arrays("origin_m", origin_m, "direction_true", direction_true)
     if target_height_m is not None:
         o_ecef, ex, ey, up = grid_axes_ecef(o, code)
         d_ecef = d[..., :1] * ex + d[..., 1:2] * ey + d[..., 2:] * up
         d_ecef = d_ecef / np.linalg.norm(d_ecef, axis=-1, keepdims=True)
-        return rays_projected_from_ecef(o_ecef, d_ecef, code, target_height_m=target_height_m,
-                                        entry_height_m=entry_height_m)
+        return rays_projected_from_ecef(
+            o_ecef, d_ecef, code, target_height_m=target_height_m, entry_height_m=entry_height_m
+        )
     k = scale_factor(o[..., 0], o[..., 1], code)
     dp = np.concatenate([d[..., :2] * k[..., None], d[..., 2:]], axis=-1)
     n = np.linalg.norm(dp, axis=-1)
     shape = o.shape[:-1]
-    return ProjectedRays(o.copy(), dp / n[..., None], np.zeros(shape), 1.0 / n,
-                         np.ones(shape, dtype=bool))
+    return ProjectedRays(
+        o.copy(), dp / n[..., None], np.zeros(shape), 1.0 / n, np.ones(shape, dtype=bool)
+    )

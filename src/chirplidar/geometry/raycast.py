@@ -1,5 +1,5 @@
-"""Ray casting on a :class:`~chirplidar.geometry.terrain.Terrain`: first hits, exact ranges, beam
-footprints.
+"""Ray casting on a :class:`~chirplidar.geometry.terrain.Terrain`: first hits and exact ranges
+(beam footprints, as many sub-rays, are in :mod:`.footprints`).
 
 * ``cast_rays``: first hit of every ray. Embree (float32 after the shift and scale to a box of
   about 100 units that trimesh's embree wrapper uses) finds the hit triangle; the range is then
@@ -15,8 +15,6 @@ footprints.
   always the same one for the same batch of rays). Where they would be more than
   ``CROP_MAX_FRACTION`` of the terrain, the whole terrain's structure is built (once per
   process) and used instead.
-* ``footprint_subrays`` / ``footprint_returns``: a beam of finite divergence as a deterministic
-  Fibonacci (golden-angle) spiral of sub-rays with Gaussian weights exp(-2 theta^2/theta_d^2).
 * ``bench_raycast``: our ``cast_rays`` against the raw embree call on the same rays.
 
 Misses: range, points and incidence are ``inf``, face index and material code ``-1`` (never NaN).
@@ -33,9 +31,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from trimesh.ray import ray_triangle as _ray_triangle
 
-from .terrain import Terrain, flat_plane
+from .synthetic_terrain import flat_plane
+from .terrain import HeightGrid, Terrain
 
+#: The golden angle (rad): successive points of a Fibonacci spiral or lattice.
 GOLDEN_ANGLE_RAD = np.pi * (3.0 - np.sqrt(5.0))
 
 
@@ -48,7 +49,6 @@ try:  # embreex is a hard dependency, but keep a working (slow) path without it
     from embreex.mesh_construction import TriangleMesh as _EmbreeTriangles
 except ImportError:  # pragma: no cover - depends on the environment
     _embree = None
-from trimesh.ray import ray_triangle as _ray_triangle
 
 _fallback_warned = False
 _WHOLE_LOCK = threading.Lock()
@@ -69,10 +69,10 @@ def embree_available() -> bool:
 class RayHits:
     """First hits of n rays. Misses: ranges/points/incidence inf, face_index/material_codes -1."""
 
-    ranges_m: np.ndarray        # (n,) distance origin -> hit along the unit direction (m)
-    points_m: np.ndarray        # (n, 3) hit points (m)
-    face_index: np.ndarray      # (n,) int64 face index into terrain.mesh.faces
-    incidence_rad: np.ndarray   # (n,) angle between -direction and the face normal, [0, pi/2]
+    ranges_m: np.ndarray  # (n,) distance origin -> hit along the unit direction (m)
+    points_m: np.ndarray  # (n, 3) hit points (m)
+    face_index: np.ndarray  # (n,) int64 face index into terrain.mesh.faces
+    incidence_rad: np.ndarray  # (n,) angle between -direction and the face normal, [0, pi/2]
     material_codes: np.ndarray  # (n,) int32 codes into terrain.material_names
 
     @property
@@ -80,24 +80,9 @@ class RayHits:
         return self.face_index >= 0
 
 
-@dataclass(frozen=True)
-class FootprintReturns:
-    """Per-shot statistics over a beam's sub-rays (weights renormalised over the hits).
-
-    Shots with no hit: range_mean_m, range_std_m, range_spread_m, incidence_mean_rad are inf and
-    material_code is -1; hit_fraction is 0.
-    """
-
-    range_mean_m: np.ndarray       # weighted mean range of hitting sub-rays (m)
-    range_std_m: np.ndarray        # weighted standard deviation of range (m)
-    range_spread_m: np.ndarray     # max - min range of hitting sub-rays (m)
-    incidence_mean_rad: np.ndarray  # weighted mean incidence (rad)
-    material_code: np.ndarray      # weight-majority material code (-1 if no hit)
-    hit_fraction: np.ndarray       # fraction of the beam's weight that hits terrain, [0, 1]
-
-
 # ---------------------------------------------------------------------- validation
-def _rays(origins_m, directions):
+def validated_rays(origins_m, directions):
+    """(n, 3) float64 origins (m) and unit directions; ValueError naming a bad argument."""
     o = np.asarray(origins_m, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     if o.ndim != 2 or o.shape[1] != 3:
@@ -144,9 +129,11 @@ class _EmbreeScene:
     def __init__(self, vertices, faces, frame):
         self.origin, self.scale = frame
         self.scene = _embree.EmbreeScene()
-        _EmbreeTriangles(scene=self.scene,
-                         vertices=((vertices - self.origin) * self.scale).astype(np.float32),
-                         indices=np.asarray(faces).astype(np.int32))
+        _EmbreeTriangles(
+            scene=self.scene,
+            vertices=((vertices - self.origin) * self.scale).astype(np.float32),
+            indices=np.asarray(faces).astype(np.int32),
+        )
 
     def first_hits(self, origins, directions) -> np.ndarray:
         """Index of the first triangle hit by each ray, -1 for a miss."""
@@ -160,9 +147,12 @@ def _whole_scene(terrain: Terrain) -> _EmbreeScene:
     c = terrain._cache
     with _WHOLE_LOCK:
         if "embree" not in c:
-            scene = _EmbreeScene(np.asarray(terrain.mesh.vertices, dtype=np.float64),
-                                 terrain.mesh.faces, _geometry(terrain)["embree_frame"])
-            scene.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))   # commits it
+            scene = _EmbreeScene(
+                np.asarray(terrain.mesh.vertices, dtype=np.float64),
+                terrain.mesh.faces,
+                _geometry(terrain)["embree_frame"],
+            )
+            scene.first_hits(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # commits it
             c["embree"] = scene
     return c["embree"]
 
@@ -177,6 +167,13 @@ def _whole_planes(terrain: Terrain):
     return c["planes"]
 
 
+def _height_grid(terrain: Terrain) -> HeightGrid:
+    """The grid of a heightfield terrain (callers check ``terrain.grid`` first)."""
+    if terrain.grid is None:
+        raise ValueError("terrain has no height grid (not a heightfield)")
+    return terrain.grid
+
+
 def _reachable_cells(terrain: Terrain, origins, directions):
     """Flat indices (ascending) of the terrain cells of ``terrain.grid`` that can hold a first
     hit of the rays, or None when they are more than ``CROP_MAX_FRACTION`` of the terrain.
@@ -185,7 +182,7 @@ def _reachable_cells(terrain: Terrain, origins, directions):
     box; the cells under each stretch's x-y extent, one more all round (rounding), hold it.
     Long stretches are cut into pieces of about ``_PIECE_CELLS`` cells first.
     """
-    grid = terrain.grid
+    grid = _height_grid(terrain)
     gx, gy = grid.x_m, grid.y_m
     ncx, ncy = gx.size - 1, gy.size - 1
     lo, hi = _geometry(terrain)["box"]
@@ -215,14 +212,18 @@ def _reachable_cells(terrain: Terrain, origins, directions):
         i1 = cell(gx, sx, np.maximum(xa, xb)) + 1
         j0 = cell(gy, sy, np.minimum(ya, yb)) - 1
         j1 = cell(gy, sy, np.maximum(ya, yb)) + 1
-        return (np.clip(i0, 0, ncx - 1), np.clip(i1, 0, ncx - 1),
-                np.clip(j0, 0, ncy - 1), np.clip(j1, 0, ncy - 1))
+        return (
+            np.clip(i0, 0, ncx - 1),
+            np.clip(i1, 0, ncx - 1),
+            np.clip(j0, 0, ncy - 1),
+            np.clip(j1, 0, ncy - 1),
+        )
 
     i0, i1, j0, j1 = cell_ranges(t0, t1)
     pieces = 1 + np.maximum(i1 - i0, j1 - j0) // _PIECE_CELLS
     if pieces.max() > 1:
         total = int(pieces.sum())
-        if total > ncx * ncy:   # stretches across the whole grid: no crop
+        if total > ncx * ncy:  # stretches across the whole grid: no crop
             return None
         ray = np.repeat(np.arange(pieces.size), pieces)
         k = np.arange(total) - np.repeat(np.cumsum(pieces) - pieces, pieces)
@@ -233,13 +234,21 @@ def _reachable_cells(terrain: Terrain, origins, directions):
     # difference array, then cumulative sums along both axes.
     wi, wj = int(i0.min()), int(j0.min())
     w, h = int(i1.max()) - wi + 2, int(j1.max()) - wj + 2
-    corner = np.concatenate([(j0 - wj) * w + (i0 - wi), (j1 + 1 - wj) * w + (i1 + 1 - wi),
-                             (j0 - wj) * w + (i1 + 1 - wi), (j1 + 1 - wj) * w + (i0 - wi)])
+    corner = np.concatenate(
+        [
+            (j0 - wj) * w + (i0 - wi),
+            (j1 + 1 - wj) * w + (i1 + 1 - wi),
+            (j0 - wj) * w + (i1 + 1 - wi),
+            (j1 + 1 - wj) * w + (i0 - wi),
+        ]
+    )
     n = i0.size
-    diff = (np.bincount(corner[:2 * n], minlength=w * h)
-            - np.bincount(corner[2 * n:], minlength=w * h)).reshape(h, w)
+    diff = (
+        np.bincount(corner[: 2 * n], minlength=w * h)
+        - np.bincount(corner[2 * n :], minlength=w * h)
+    ).reshape(h, w)
     covered = np.cumsum(np.cumsum(diff, axis=0), axis=1)[:-1, :-1] > 0
-    faces = grid.cell_face[wj:wj + h - 1, wi:wi + w - 1]
+    faces = grid.cell_face[wj : wj + h - 1, wi : wi + w - 1]
     jj, ii = np.nonzero(covered & (faces >= 0))
     if 2 * jj.size > CROP_MAX_FRACTION * terrain.n_faces:
         return None
@@ -249,16 +258,16 @@ def _reachable_cells(terrain: Terrain, origins, directions):
 def _crop_scene(terrain: Terrain, cells):
     """Embree scene of the triangles of ``cells`` (flat cell indices of ``terrain.grid``) and
     the terrain face index of each of its triangles."""
-    grid = terrain.grid
+    grid = _height_grid(terrain)
     nx = grid.x_m.size
     j, i = np.divmod(cells, nx - 1)
-    n00 = j * nx + i                        # node (j, i), as Terrain.from_heightfield numbers
-    corners = (n00, n00 + 1, n00 + nx, n00 + nx + 1)     # v00, v10, v01, v11
+    n00 = j * nx + i  # node (j, i), as Terrain.from_heightfield numbers
+    corners = (n00, n00 + 1, n00 + nx, n00 + nx + 1)  # v00, v10, v01, v11
     nodes = np.unique(np.concatenate(corners))
     v00, v10, v01, v11 = (np.searchsorted(nodes, c) for c in corners)
     faces = np.empty((2 * cells.size, 3), dtype=np.int64)
-    faces[0::2] = np.column_stack([v00, v10, v11])      # the terrain's own triangles, in its
-    faces[1::2] = np.column_stack([v00, v11, v01])      # vertex order
+    faces[0::2] = np.column_stack([v00, v10, v11])  # the terrain's own triangles, in its
+    faces[1::2] = np.column_stack([v00, v11, v01])  # vertex order
     nj, ni = np.divmod(nodes, nx)
     verts = np.column_stack([grid.x_m[ni], grid.y_m[nj], grid.z_m.ravel()[nodes]])
     face_of = np.empty(2 * cells.size, dtype=np.int64)
@@ -283,15 +292,20 @@ def _first_triangle(terrain: Terrain, origins, directions):
         scene, face_of = _crop_scene(terrain, cells)
         return scene.first_hits(origins, directions), face_of
     if not _fallback_warned:
-        warnings.warn("embreex is not available: using trimesh's ray_triangle intersector "
-                      "(orders of magnitude slower); pip install embreex",
-                      EmbreeUnavailableWarning, stacklevel=3)
+        warnings.warn(
+            "embreex is not available: using trimesh's ray_triangle intersector "
+            "(orders of magnitude slower); pip install embreex",
+            EmbreeUnavailableWarning,
+            stacklevel=3,
+        )
         _fallback_warned = True
     try:
         import rtree  # noqa: F401  (trimesh's ray_triangle builds an r-tree of the faces)
     except ImportError as exc:
-        raise ImportError("ray casting needs embreex (pip install embreex) or, for the slow "
-                          "fallback, rtree (pip install rtree)") from exc
+        raise ImportError(
+            "ray casting needs embreex (pip install embreex) or, for the slow "
+            "fallback, rtree (pip install rtree)"
+        ) from exc
     c = terrain._cache
     if "triangle" not in c:
         c["triangle"] = _ray_triangle.RayMeshIntersector(terrain.mesh)
@@ -324,7 +338,7 @@ def _box_clip(origins, directions, lo, hi):
     t0 = np.zeros(n)
     t1 = np.full(n, np.inf)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for k in range(3):   # three axes, each vectorised over all rays
+        for k in range(3):  # three axes, each vectorised over all rays
             ok = origins[:, k]
             inv = 1.0 / directions[:, k]
             ta = (lo[k] - ok) * inv
@@ -343,7 +357,7 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
     float64 intersection of the full ray with the plane of the hit triangle.
     """
     terrain = _terrain(terrain)
-    o, d = _rays(origins_m, directions)
+    o, d = validated_rays(origins_m, directions)
     n = o.shape[0]
     ranges = np.full(n, np.inf)
     points = np.full((n, 3), np.inf)
@@ -360,7 +374,7 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
         t0, cand = np.zeros(n), None
     else:
         t0, _, cand = _box_clip(o, d, lo, hi)
-    if cand is None or cand.all():      # common case: no gather needed
+    if cand is None or cand.all():  # common case: no gather needed
         idx, oc, dc, tc = None, o, d, t0
     else:
         idx = np.flatnonzero(cand)
@@ -369,10 +383,10 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
     ok = tri >= 0
     if ok.all():
         oo, dd = oc, dc
-        idx = slice(None) if idx is None else idx
+        sel: np.ndarray | slice = slice(None) if idx is None else idx
     else:
         oo, dd, tri = oc[ok], dc[ok], tri[ok]
-        idx = np.flatnonzero(ok) if idx is None else idx[ok]
+        sel = np.flatnonzero(ok) if idx is None else idx[ok]
         if tri.size == 0:
             return RayHits(ranges, points, face, inc, mat)
     # the planes of the structure's faces (the whole terrain's: once), one gather per hit
@@ -383,7 +397,7 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
     ndotd = np.einsum("ij,ij->i", nrm, dd)
     num = pl[:, 3] - np.einsum("ij,ij->i", nrm, oo)
     grazing = np.abs(ndotd) < 1e-12
-    if grazing.any():   # ray (numerically) in the face's plane: range to its first vertex
+    if grazing.any():  # ray (numerically) in the face's plane: range to its first vertex
         gi = np.flatnonzero(grazing)
         num[gi] = np.einsum("ij,ij->i", v0[tri[gi]] - oo[gi], dd[gi])
         ndotd_safe = ndotd.copy()
@@ -393,131 +407,12 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
         t = num / ndotd
     if face_of is not None:
         tri = np.take(face_of, tri)
-    ranges[idx] = t
-    points[idx] = oo + dd * t[:, None]
-    face[idx] = tri
-    inc[idx] = np.arccos(np.minimum(np.abs(ndotd), 1.0))
-    mat[idx] = np.take(terrain.face_materials, tri)
+    ranges[sel] = t
+    points[sel] = oo + dd * t[:, None]
+    face[sel] = tri
+    inc[sel] = np.arccos(np.minimum(np.abs(ndotd), 1.0))
+    mat[sel] = np.take(terrain.face_materials, tri)
     return RayHits(ranges, points, face, inc, mat)
-
-
-# ---------------------------------------------------------------------- footprints
-def _perpendicular_basis(d):
-    """Two unit vectors e1, e2 with (e1, e2, d) orthonormal, for every row of unit d."""
-    ref = np.where((np.abs(d[:, 2]) < 0.9)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
-    e1 = np.cross(ref, d)
-    e1 /= np.linalg.norm(e1, axis=1)[:, None]
-    e2 = np.cross(d, e1)
-    return e1, e2
-
-
-def subray_pattern(n_sub: int, extent_rad: float):
-    """Fibonacci (golden-angle) spiral of n_sub angular offsets filling a disk of radius
-    extent_rad: theta_k proportional to sqrt(k + 1/2), scaled so the outermost sub-ray sits
-    exactly on the edge (theta = extent_rad); phi_k = k * golden angle. Returns (theta, phi).
-    """
-    k = np.arange(n_sub, dtype=np.float64)
-    r = np.sqrt((k + 0.5) / n_sub)
-    r = r / r[-1]
-    return extent_rad * r, k * GOLDEN_ANGLE_RAD
-
-
-def footprint_subrays(origins, directions, divergence_half_angle_rad, n_sub: int, rng=None,
-                      *, extent_factor: float = 1.0):
-    """Sub-rays over a beam's divergence cone with Gaussian weights.
-
-    divergence_half_angle_rad: 1/e^2 intensity half-angle theta_d of the beam (rad, > 0).
-    The pattern is a Fibonacci spiral out to theta_max = extent_factor * theta_d (the
-    outermost sub-ray exactly at theta_max); its ground footprint diameter is
-    2 R tan(theta_max) at range R. Weights w = exp(-2 theta^2 / theta_d^2) (Gaussian beam
-    intensity), normalised to sum 1 per shot. With ``rng`` (a numpy Generator) each shot's
-    pattern is rotated by a random azimuth; without it the pattern is deterministic.
-
-    Returns (origins (n*n_sub, 3), directions (n*n_sub, 3), weights (n, n_sub)); sub-rays of
-    shot i are rows i*n_sub ... (i+1)*n_sub - 1.
-    """
-    o, d = _rays(origins, directions)
-    th_d = float(divergence_half_angle_rad)
-    if not np.isfinite(th_d) or th_d <= 0 or th_d >= np.pi / 4:
-        raise ValueError(f"divergence_half_angle_rad must lie in (0, pi/4), got "
-                         f"{divergence_half_angle_rad!r}")
-    if isinstance(n_sub, (bool, np.bool_)) or int(n_sub) != n_sub or n_sub < 1:
-        raise ValueError(f"n_sub must be a positive integer, got {n_sub!r}")
-    n_sub = int(n_sub)
-    if not (np.isfinite(extent_factor) and extent_factor > 0):
-        raise ValueError(f"extent_factor must be > 0, got {extent_factor!r}")
-    if rng is not None and not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy.random.Generator or None, got {type(rng)!r}")
-    n = o.shape[0]
-    if n_sub == 1:
-        theta, phi = np.zeros(1), np.zeros(1)
-    else:
-        theta, phi = subray_pattern(n_sub, extent_factor * th_d)
-    phi = np.broadcast_to(phi, (n, n_sub))
-    if rng is not None:
-        phi = phi + rng.uniform(0.0, 2 * np.pi, n)[:, None]
-    e1, e2 = _perpendicular_basis(d)
-    st, ct = np.sin(theta)[None, :, None], np.cos(theta)[None, :, None]
-    sub = (ct * d[:, None, :]
-           + st * (np.cos(phi)[..., None] * e1[:, None, :] + np.sin(phi)[..., None] * e2[:, None, :]))
-    w = np.exp(-2.0 * theta ** 2 / th_d ** 2)
-    w = np.broadcast_to(w / w.sum(), (n, n_sub)).copy()
-    return (np.repeat(o, n_sub, axis=0), sub.reshape(n * n_sub, 3), w)
-
-
-def weighted_range_stats(weights, ranges_m):
-    """Weighted mean and standard deviation of ranges over the last axis.
-
-    weights (..., k) >= 0, zero for sub-rays that missed (their ranges may be inf); ranges_m
-    (..., k). Returns (mean, std, total weight), each (...); mean and std are NaN where the
-    total weight is 0.
-    """
-    tot = weights.sum(axis=-1)
-    ok = tot > 0
-    w = weights / np.where(ok, tot, 1.0)[..., None]
-    r = np.where(weights > 0, ranges_m, 0.0)
-    mean = np.sum(w * r, axis=-1)
-    var = np.sum(w * (r - mean[..., None]) ** 2, axis=-1)
-    return np.where(ok, mean, np.nan), np.where(ok, np.sqrt(var), np.nan), tot
-
-
-def footprint_returns(terrain: Terrain, origins, directions, divergence_half_angle_rad,
-                      n_sub: int, rng=None, *, extent_factor: float = 1.0) -> FootprintReturns:
-    """Per-shot statistics of a beam's sub-ray hits (see ``footprint_subrays``); vectorised.
-
-    Mean, standard deviation and mean incidence are weighted by the Gaussian sub-ray weights
-    renormalised over hitting sub-rays; the material is the one carrying most hit weight;
-    hit_fraction is the hitting share of the beam weight.
-    """
-    so, sd, w = footprint_subrays(origins, directions, divergence_half_angle_rad, n_sub, rng,
-                                  extent_factor=extent_factor)
-    n, m = w.shape
-    hits = cast_rays(terrain, so, sd)
-    hit = hits.hit.reshape(n, m)
-    wh = np.where(hit, w, 0.0)
-    mean, std, frac = weighted_range_stats(wh, hits.ranges_m.reshape(n, m))
-    anyhit = frac > 0
-    wn = wh / np.where(anyhit, frac, 1.0)[:, None]
-    r = np.where(hit, hits.ranges_m.reshape(n, m), 0.0)
-    inc = np.where(hit, hits.incidence_rad.reshape(n, m), 0.0)
-    rmax = np.max(np.where(hit, r, -np.inf), axis=1)
-    rmin = np.min(np.where(hit, r, np.inf), axis=1)
-    inc_mean = np.sum(wn * inc, axis=1)
-    n_mat = len(terrain.material_names)
-    codes = hits.material_codes.reshape(n, m)
-    shot = np.broadcast_to(np.arange(n)[:, None], (n, m))
-    per = np.bincount((shot * n_mat + np.maximum(codes, 0))[hit], weights=wh[hit],
-                      minlength=n * n_mat).reshape(n, n_mat)
-    mat = np.where(anyhit, np.argmax(per, axis=1), -1).astype(np.int32)
-    inf = np.inf
-    return FootprintReturns(
-        range_mean_m=np.where(anyhit, mean, inf),
-        range_std_m=np.where(anyhit, std, inf),
-        range_spread_m=np.where(anyhit, rmax - np.where(anyhit, rmin, 0.0), inf),
-        incidence_mean_rad=np.where(anyhit, inc_mean, inf),
-        material_code=mat,
-        hit_fraction=np.clip(frac, 0.0, 1.0),
-    )
 
 
 # ---------------------------------------------------------------------- benchmark
@@ -534,17 +429,18 @@ def bench_raycast(n_triangles: int = 1_000_000, n_rays: int = 200_000, *, repeat
     if _embree is None:
         raise RuntimeError("bench_raycast needs embreex (pip install embreex)")
     from trimesh.ray import ray_pyembree
+
     n_triangles, n_rays = int(n_triangles), int(n_rays)
     if n_triangles < 2 or n_rays < 1:
         raise ValueError(f"n_triangles >= 2 and n_rays >= 1 required, got {n_triangles}, {n_rays}")
-    side = int(np.ceil(np.sqrt(n_triangles / 2.0))) + 1      # nodes per side
+    side = int(np.ceil(np.sqrt(n_triangles / 2.0))) + 1  # nodes per side
     terr = flat_plane(0.0, (0.0, side - 1.0, 0.0, side - 1.0), 1.0)
     v = terr.mesh.vertices.copy()
     v[:, 2] = 0.3 * np.sin(v[:, 0] / 7.0) * np.cos(v[:, 1] / 11.0)
     terr = Terrain(trimesh.Trimesh(v, terr.mesh.faces, process=False), terr.face_materials)
     k = np.arange(n_rays, dtype=np.float64)
     span = side - 1.0
-    alt = 100.0                        # 5 deg off nadir: <= 8.8 m offset on the ground
+    alt = 100.0  # 5 deg off nadir: <= 8.8 m offset on the ground
     inset = 0.1 * span
     xs = inset + (k * 0.6180339887498949) % 1.0 * (span - 2 * inset)
     ys = inset + (k + 0.5) / n_rays * (span - 2 * inset)
@@ -553,9 +449,9 @@ def bench_raycast(n_triangles: int = 1_000_000, n_rays: int = 200_000, *, repeat
     az = k * GOLDEN_ANGLE_RAD
     dirs = np.column_stack([np.sin(off) * np.cos(az), np.sin(off) * np.sin(az), -np.cos(off)])
     inter = ray_pyembree.RayMeshIntersector(terr.mesh)
-    inter.intersects_first(origins[:1], dirs[:1])       # builds trimesh's scene
+    inter.intersects_first(origins[:1], dirs[:1])  # builds trimesh's scene
     t = time.perf_counter()
-    _whole_scene(terr).first_hits(origins[:1], dirs[:1])     # builds ours
+    _whole_scene(terr).first_hits(origins[:1], dirs[:1])  # builds ours
     build_s = time.perf_counter() - t
     best_p = best_e = np.inf
     for _ in range(max(1, int(repeats))):
@@ -566,6 +462,12 @@ def bench_raycast(n_triangles: int = 1_000_000, n_rays: int = 200_000, *, repeat
         hits = cast_rays(terr, origins, dirs)
         best_p = min(best_p, time.perf_counter() - t)
     p, e = n_rays / best_p, n_rays / best_e
-    return {"project_rays_per_s": p, "embree_rays_per_s": e, "ratio": p / e,
-            "n_triangles": terr.n_faces, "n_rays": n_rays, "build_s": build_s,
-            "hit_fraction": float(hits.hit.mean())}
+    return {
+        "project_rays_per_s": p,
+        "embree_rays_per_s": e,
+        "ratio": p / e,
+        "n_triangles": terr.n_faces,
+        "n_rays": n_rays,
+        "build_s": build_s,
+        "hit_fraction": float(hits.hit.mean()),
+    }

@@ -34,7 +34,7 @@ from chirplidar import _checks
 
 __all__ = ["sun_elevation_deg", "sun_ra_dec_deg"]
 
-_MJD_J2000 = 51544.5     # MJD of JD 2451545.0 (2000-01-01T12:00)
+_MJD_J2000 = 51544.5  # MJD of JD 2451545.0 (2000-01-01T12:00)
 
 
 def sun_ra_dec_deg(mjd_utc) -> tuple[np.ndarray, np.ndarray]:
@@ -65,8 +65,10 @@ def sun_elevation_deg(lat_deg, lon_deg, mjd_utc) -> np.ndarray:
     try:
         lat, lon, mjd = np.broadcast_arrays(lat, lon, mjd)
     except ValueError:
-        raise ValueError(f"lat_deg, lon_deg and mjd_utc must have broadcastable shapes, got "
-                         f"{lat.shape}, {lon.shape} and {mjd.shape}") from None
+        raise ValueError(
+            f"lat_deg, lon_deg and mjd_utc must have broadcastable shapes, got "
+            f"{lat.shape}, {lon.shape} and {mjd.shape}"
+        ) from None
     ra, dec = sun_ra_dec_deg(mjd)
     gmst_h = np.mod(18.697374558 + 24.06570982441908 * (mjd - _MJD_J2000), 24.0)
     ha = np.radians(15.0 * gmst_h + lon - ra)

@@ -29,8 +29,9 @@ def _path_arrays(distance_m, ground_m) -> tuple[np.ndarray, np.ndarray]:
     return d, g
 
 
-def flyable_profile(distance_m, ground_m, clearance_m, speed_mps, max_climb_mps,
-                    max_descent_mps) -> np.ndarray:
+def flyable_profile(
+    distance_m, ground_m, clearance_m, speed_mps, max_climb_mps, max_descent_mps
+) -> np.ndarray:
     """The lowest flyable flight heights over a terrain profile [m].
 
     Parameters

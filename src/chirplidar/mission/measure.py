@@ -102,7 +102,7 @@ import numpy as np
 from ..channel.effects import channel_returns
 from ..config.loader import config_with
 from ..doppler import doppler_shift_hz
-from ..geometry.raycast import weighted_range_stats
+from ..geometry.footprints import weighted_range_stats
 from ..target import (
     lambertian_power_fraction,
     receiver_cone_half_angle_rad,

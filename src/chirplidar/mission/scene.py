@@ -11,7 +11,8 @@ Top level: ``name``, ``description`` (optional), ``epsg`` (3413 Greenland / 3031
 
 Terrain sources (``terrain.source``):
 
-* ``synthetic``: :func:`~chirplidar.geometry.terrain.synthetic_ice_sheet_heightfield` on a grid of
+* ``synthetic``:
+  :func:`~chirplidar.geometry.synthetic_terrain.synthetic_ice_sheet_heightfield` on a grid of
   ``size_x_m`` x ``size_y_m`` (projected-grid metres) centred on the scene centre, step
   ``resolution_m``, seeded by ``seed``; flow along grid x; divide and margin positions are given
   relative to the scene centre and feature bands as distances from the margin (metres);
@@ -61,18 +62,15 @@ from pydantic import (
 from ..atmosphere import turbulence as _turbulence
 from ..config.loader import ConfigError, one_line_message, parse_set
 from ..config.models import EFFECT_NAMES, StrictModel
-from ..geometry import terrain as _terrain
+from ..geometry import synthetic_terrain
 from ..geometry.frames import (
     SUPPORTED_EPSG,
     geodetic_to_projected,
     projected_to_geodetic,
 )
 from ..geometry.raycast import cast_rays
-from ..geometry.terrain import (
-    MATERIAL_NAMES,
-    SYNTHETIC_FEATURES,
-    Terrain,
-)
+from ..geometry.synthetic_terrain import SYNTHETIC_FEATURES
+from ..geometry.terrain import MATERIAL_NAMES, Terrain
 from ..target.materials import MATERIALS
 from ..target.reflectance import COX_MUNK_MAX_WIND_MPS, cox_munk_mss
 
@@ -605,10 +603,7 @@ def _generator_fingerprint() -> str:
     """GENERATOR_VERSION plus a hash of the generators' source: edits invalidate old entries."""
     if not _FINGERPRINT:
         h = hashlib.sha256(GENERATOR_VERSION.encode())
-        for fn in (_terrain.synthetic_ice_sheet_heightfield, _terrain.vialov_height,
-                   _terrain._smooth_noise, _terrain._grid, _terrain._extent,
-                   _terrain.flat_plane_heightfield, _terrain.sloped_plane_heightfield,
-                   _generate_heightfield):
+        for fn in (*synthetic_terrain.HEIGHTFIELD_GENERATORS, _generate_heightfield):
             try:
                 h.update(inspect.getsource(fn).encode())
             except (OSError, TypeError):   # no source (frozen app): the version alone
@@ -675,13 +670,14 @@ def _generate_heightfield(cfg: TerrainConfig, centre_xy):
     sec = cfg.section
     if cfg.source == "synthetic":
         rng = np.random.default_rng(cfg.seed)
-        x, y, z, codes = _terrain.synthetic_ice_sheet_heightfield(
+        x, y, z, codes = synthetic_terrain.synthetic_ice_sheet_heightfield(
             extent, res, rng, **sec.generator_kwargs())
         z = z + sec.base_height_m
     elif cfg.source == "flat":
-        x, y, z, codes = _terrain.flat_plane_heightfield(sec.height_m, extent, res, sec.material)
+        x, y, z, codes = synthetic_terrain.flat_plane_heightfield(sec.height_m, extent, res,
+                                                                  sec.material)
     else:   # sloped: compass azimuth -> generator's angle from +x towards +y
-        x, y, z, codes = _terrain.sloped_plane_heightfield(
+        x, y, z, codes = synthetic_terrain.sloped_plane_heightfield(
             math.radians(sec.slope_deg), math.radians(90.0 - sec.azimuth_deg), sec.height_m,
             extent, res, sec.material)
     return x + centre_xy[0], y + centre_xy[1], z, codes

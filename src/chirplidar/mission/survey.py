@@ -5,11 +5,11 @@ Conventions
 -----------
 * Time: ``t_s = 0`` is the start of the path (UAV, aircraft) or the moment the satellite's nadir
   point crosses the scene centre; ``survey.start_s`` / ``stop_s`` select the span.
-* Beams: body frame x forward, y right, z down (see :mod:`chirplidar.geometry.platform`).
+* Beams: body frame x forward, y right, z down (see :mod:`chirplidar.geometry.pointing`).
 * Every shot-beam pair is one ray in the scene frame (:class:`frames.ProjectedRays`, true ranges
   through ``range_offset_m`` and ``metres_per_unit``). Its footprint is sampled by
   ``survey.subrays_per_beam`` sub-rays over the beam's 1/e^2 cone at the shot's range
-  (:func:`raycast.footprint_subrays`, Gaussian weights).
+  (:func:`footprints.footprint_subrays`, Gaussian weights).
 * Seeds: chunk ``i`` draws from child ``i`` of ``SeedSequence(seed)``; inside a chunk the pointing
   jitter, the channel effects and the measurement noise each have their own named stream, so a
   chunk's result does not depend on which chunks ran before it, or where.
@@ -24,11 +24,12 @@ import numpy as np
 
 from ..config.loader import ConfigError
 from ..geometry import frames
-from ..geometry.platform import (AircraftLines, Attitude, BeamPattern, KeplerOrbit,
-                                 OffTerrainError, TleOrbit, UavPath, conical_scan, lawnmower,
-                                 lawnmower_lines, nadir_beam, paired_beams_across_track,
-                                 shot_geometry, shot_times)
-from ..geometry.raycast import cast_rays, footprint_subrays
+from ..geometry.orbits import KeplerOrbit, TleOrbit
+from ..geometry.paths import AircraftLines, OffTerrainError, UavPath, lawnmower, lawnmower_lines
+from ..geometry.pointing import (Attitude, BeamPattern, conical_scan, nadir_beam,
+                                 paired_beams_across_track, shot_geometry, shot_times)
+from ..geometry.footprints import footprint_subrays
+from ..geometry.raycast import cast_rays
 from ..optics import beam_radius_m
 
 #: Named random streams of a chunk (spawn-key suffixes).

@@ -8,16 +8,26 @@ import numpy as np
 
 from .._checks import finite_array, non_negative_array, positive, positive_array, real_scalar
 
-__all__ = ["finite_array", "non_negative_array", "positive", "positive_array", "real_scalar",
-           "obstruction_ratio", "grid_size", "square_field"]
+__all__ = [
+    "finite_array",
+    "non_negative_array",
+    "positive",
+    "positive_array",
+    "real_scalar",
+    "obstruction_ratio",
+    "grid_size",
+    "square_field",
+]
 
 
 def obstruction_ratio(value, name: str = "obstruction") -> float:
     """Central obstruction ratio alpha = d_secondary / D in [0, 1)."""
     v = real_scalar(name, value)
     if not 0.0 <= v < 1.0:
-        raise ValueError(f"{name} (central obstruction diameter / aperture diameter) must be in "
-                         f"[0, 1), got {v!r}")
+        raise ValueError(
+            f"{name} (central obstruction diameter / aperture diameter) must be in "
+            f"[0, 1), got {v!r}"
+        )
     return v
 
 

@@ -35,8 +35,12 @@ DEFAULT_N = 256
 MUTUAL_COHERENCE_DEFAULT_N = 128
 
 
-def coupling_beta(aperture_diameter_m: float, focal_length_m: float, mode_field_radius_m: float,
-                  wavelength_m: float) -> float:
+def coupling_beta(
+    aperture_diameter_m: float,
+    focal_length_m: float,
+    mode_field_radius_m: float,
+    wavelength_m: float,
+) -> float:
     """beta = (pi / 2) (D / f) (w0 / lambda), dimensionless (w0 = MFD / 2, 1/e^2 intensity radius)."""
     d = positive("aperture_diameter_m", aperture_diameter_m)
     f = positive("focal_length_m", focal_length_m)
@@ -112,8 +116,14 @@ def pupil_field_coupling(pupil_field, beta: float, obstruction: float = 0.0):
     return float(eta) if eta.ndim == 0 else eta
 
 
-def coupling_efficiency(beta: float, obstruction: float = 0.0, *, method: str = "analytic",
-                        pupil_phase=None, n: int | None = None) -> float:
+def coupling_efficiency(
+    beta: float,
+    obstruction: float = 0.0,
+    *,
+    method: str = "analytic",
+    pupil_phase=None,
+    n: int | None = None,
+) -> float:
     """Fiber coupling efficiency of a (possibly aberrated) plane wave through an annular aperture.
 
     Parameters
@@ -139,8 +149,9 @@ def coupling_efficiency(beta: float, obstruction: float = 0.0, *, method: str = 
     alpha = obstruction_ratio(obstruction)
     if method == "analytic":
         if pupil_phase is not None:
-            raise ValueError("pupil_phase requires method='numeric' (the closed form is for a "
-                             "plane wave)")
+            raise ValueError(
+                "pupil_phase requires method='numeric' (the closed form is for a plane wave)"
+            )
         if n is not None:
             grid_size(n)
         return _analytic(b, alpha)
@@ -175,8 +186,9 @@ def _maximise(fn, lo: float = 0.02, hi: float = 6.0, points: int = 121) -> float
     vals = np.array([fn(b) for b in scan])
     k = int(np.argmax(vals))
     a, c = scan[max(k - 1, 0)], scan[min(k + 1, points - 1)]
-    res = minimize_scalar(lambda b: -fn(b), bounds=(a, c), method="bounded",
-                          options={"xatol": 1e-9})
+    res = minimize_scalar(
+        lambda b: -fn(b), bounds=(a, c), method="bounded", options={"xatol": 1e-9}
+    )
     return float(res.x)
 
 
@@ -230,7 +242,7 @@ def _gl_nodes(a, b, rule, cosine_map: bool):
 def _radial_nodes(pitch: float | None, breakpoints=(), geometric: bool = True):
     """Radial rule on [0, rho_max] (units of D); ``geometric`` panels resolve kernels to 1e-9 D."""
     rho_max = 1.0 if pitch is None else 1.0 + 2.0 * pitch
-    parts = [[0.0, rho_max], np.asarray(breakpoints, dtype=float)]
+    parts = [np.array([0.0, rho_max]), np.asarray(breakpoints, dtype=float)]
     if geometric:
         parts.append(np.geomspace(_RHO_FLOOR, rho_max, 91))
     if pitch is not None:
@@ -242,8 +254,9 @@ def _radial_nodes(pitch: float | None, breakpoints=(), geometric: bool = True):
     return rho.ravel(), wts.ravel()
 
 
-def _lattice_radial_mean(lag_field: np.ndarray, pitch: float, rho: np.ndarray,
-                         n_angles: int) -> np.ndarray:
+def _lattice_radial_mean(
+    lag_field: np.ndarray, pitch: float, rho: np.ndarray, n_angles: int
+) -> np.ndarray:
     """Angular mean of the bilinear interpolant of a lag lattice (zero lag at [n, n]) at radii rho.
 
     Uses the lattice's 8-fold symmetry (angles in [0, pi/4]).
@@ -252,14 +265,18 @@ def _lattice_radial_mean(lag_field: np.ndarray, pitch: float, rho: np.ndarray,
     theta = (np.arange(n_angles) + 0.5) * (0.25 * np.pi / n_angles)
     rows = n + np.outer(rho, np.sin(theta)) / pitch
     cols = n + np.outer(rho, np.cos(theta)) / pitch
-    return map_coordinates(lag_field, [rows.ravel(), cols.ravel()], order=1, mode="constant",
-                           cval=0.0).reshape(rho.size, n_angles).mean(axis=1)
+    return (
+        map_coordinates(lag_field, [rows.ravel(), cols.ravel()], order=1, mode="constant", cval=0.0)
+        .reshape(rho.size, n_angles)
+        .mean(axis=1)
+    )
 
 
-def annulus_mode_autocorrelation(rho, beta: float, obstruction: float = 0.0) -> np.ndarray:
+def annulus_mode_autocorrelation(rho, beta: float, obstruction: float = 0.0) -> np.ndarray | float:
     """C(rho) = int P M(r) P M(r + rho) d^2r for the annulus P and mode M = exp(-(2 beta r / D)^2).
 
-    rho : separations / D (array, >= 0). Returns float64 of rho's shape, units of D^2. Computed in
+    rho : separations / D (array, >= 0). Returns float64 of rho's shape (a float for a scalar
+    rho), units of D^2. Computed in
     polar coordinates about the first point: for each radius r the angles where |r + rho| lies in
     the annulus are explicit (law of cosines); Gauss-Legendre in r (cosine-mapped between the
     breakpoints where those limits change) and in angle.
@@ -275,29 +292,55 @@ def annulus_mode_autocorrelation(rho, beta: float, obstruction: float = 0.0) -> 
     flat = p.ravel()
     res = out.ravel()
     for start in range(0, flat.size, 256):
-        q = flat[start:start + 256][:, None]  # (m, 1)
-        bps = np.sort(np.clip(np.concatenate(
-            [np.full_like(q, small_r), np.full_like(q, big_r), big_r - q, q - big_r,
-             small_r - q, q - small_r, q + small_r], axis=1), small_r, big_r), axis=1)
+        q = flat[start : start + 256][:, None]  # (m, 1)
+        bps = np.sort(
+            np.clip(
+                np.concatenate(
+                    [
+                        np.full_like(q, small_r),
+                        np.full_like(q, big_r),
+                        big_r - q,
+                        q - big_r,
+                        small_r - q,
+                        q - small_r,
+                        q + small_r,
+                    ],
+                    axis=1,
+                ),
+                small_r,
+                big_r,
+            ),
+            axis=1,
+        )
         r, wr = _gl_nodes(bps[:, :-1], bps[:, 1:], _GL16, cosine_map=True)  # (m, 6, 16)
         qq = q[:, :, None]
         two_rq = np.maximum(2.0 * r * qq, 1e-300)
-        cmax = np.clip((big_r ** 2 - r * r - qq * qq) / two_rq, -1.0, 1.0)
-        cmin = np.clip((small_r ** 2 - r * r - qq * qq) / two_rq, -1.0, 1.0)
+        cmax = np.clip((big_r**2 - r * r - qq * qq) / two_rq, -1.0, 1.0)
+        cmin = np.clip((small_r**2 - r * r - qq * qq) / two_rq, -1.0, 1.0)
         phi_lo, phi_hi = np.arccos(cmax), np.arccos(cmin)  # allowed phi in [phi_lo, phi_hi]
         phi, wphi = _gl_nodes(phi_lo, phi_hi, _GL16, cosine_map=False)  # (m, 6, 16, 16)
-        expo = -(2.0 * r[..., None] ** 2 + qq[..., None] ** 2
-                 + 2.0 * r[..., None] * qq[..., None] * np.cos(phi)) * inv_w2
+        expo = (
+            -(
+                2.0 * r[..., None] ** 2
+                + qq[..., None] ** 2
+                + 2.0 * r[..., None] * qq[..., None] * np.cos(phi)
+            )
+            * inv_w2
+        )
         inner = 2.0 * np.sum(wphi * np.exp(expo), axis=-1)  # both half planes
-        res[start:start + 256] = np.sum(wr * r * inner, axis=(1, 2))
+        res[start : start + 256] = np.sum(wr * r * inner, axis=(1, 2))
     return out.reshape(np.shape(rho)) if np.ndim(rho) else float(out[0])
 
 
 def _zero_lag(beta: float, alpha: float) -> float:
     """C(0) = int P M^2 d^2r = (pi W^2 / 2)[exp(-2 a^2 b^2) - exp(-2 b^2)], units of D^2."""
     b2 = beta * beta
-    return float(np.pi / (8.0 * b2) * np.exp(-2.0 * alpha * alpha * b2)
-                 * -np.expm1(-2.0 * (1.0 - alpha * alpha) * b2))
+    return float(
+        np.pi
+        / (8.0 * b2)
+        * np.exp(-2.0 * alpha * alpha * b2)
+        * -np.expm1(-2.0 * (1.0 - alpha * alpha) * b2)
+    )
 
 
 def _annulus_breakpoints(alpha: float):
@@ -306,25 +349,32 @@ def _annulus_breakpoints(alpha: float):
 
 def _structure_kernel(structure_function):
     if not callable(structure_function):
-        raise ValueError("structure_function must be a callable of separation / D returning the "
-                         "phase structure function in rad^2")
+        raise ValueError(
+            "structure_function must be a callable of separation / D returning the "
+            "phase structure function in rad^2"
+        )
 
     def kernel(rho):
         try:
             d = np.asarray(structure_function(rho), dtype=float)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"structure_function failed on a float64 array of separations: "
-                             f"{exc}") from None
+            raise ValueError(
+                f"structure_function failed on a float64 array of separations: {exc}"
+            ) from None
         if d.shape != rho.shape:
-            raise ValueError(f"structure_function must return an array of the input's shape "
-                             f"{rho.shape}, got {d.shape}")
+            raise ValueError(
+                f"structure_function must return an array of the input's shape "
+                f"{rho.shape}, got {d.shape}"
+            )
         if not np.all(np.isfinite(d)) or np.any(d < 0.0):
             raise ValueError("structure_function must return finite values >= 0 (rad^2)")
         k = int(np.argmin(rho))
         if d.flat[k] > 0.02:
-            raise ValueError(f"structure_function is {d.flat[k]:.3g} rad^2 already at a separation "
-                             f"of {rho.flat[k]:.1e} D: the phase coherence length is below what "
-                             f"can be resolved (about 1e-9 D), or D_phi(0) != 0")
+            raise ValueError(
+                f"structure_function is {d.flat[k]:.3g} rad^2 already at a separation "
+                f"of {rho.flat[k]:.1e} D: the phase coherence length is below what "
+                f"can be resolved (about 1e-9 D), or D_phi(0) != 0"
+            )
         return np.exp(-0.5 * d)
 
     return kernel
@@ -336,9 +386,15 @@ def _method(method: str) -> str:
     return method
 
 
-def coupling_mutual_coherence(beta: float, obstruction: float, structure_function, *,
-                              n: int = MUTUAL_COHERENCE_DEFAULT_N, method: str = "fft",
-                              n_angles: int = 64) -> float:
+def coupling_mutual_coherence(
+    beta: float,
+    obstruction: float,
+    structure_function,
+    *,
+    n: int = MUTUAL_COHERENCE_DEFAULT_N,
+    method: str = "fft",
+    n_angles: int = 64,
+) -> float:
     """Mean coupling efficiency of a plane wave through phase-only (Gaussian-statistics) turbulence.
 
     Deterministic:  <eta> = int int P M(r1) P M(r2) exp(-D_phi(|r1 - r2|) / 2) d^2r1 d^2r2
@@ -391,7 +447,7 @@ def coupling_mutual_coherence(beta: float, obstruction: float, structure_functio
         # quadrature sum(w M^2) (matters when exp(-D_phi/2) is narrower than a pixel).
         lag[n, n] = float(np.sum(f * fiber_mode_pupil(grid, b))) * grid.pixel_area
         rho, wts = _radial_nodes(grid.pitch)
-        c = _lattice_radial_mean(lag, grid.pitch, rho, n_angles)
+        c: np.ndarray | float = _lattice_radial_mean(lag, grid.pitch, rho, n_angles)
         area = grid.area
     else:
         rho, wts = _radial_nodes(None, _annulus_breakpoints(alpha))
@@ -401,8 +457,13 @@ def coupling_mutual_coherence(beta: float, obstruction: float, structure_functio
     return float(max(total, 0.0) / (area * _mode_norm(b)))
 
 
-def monostatic_diffuse_coupling(beta: float, obstruction: float = 0.0, *, method: str = "radial",
-                                n: int = MUTUAL_COHERENCE_DEFAULT_N) -> float:
+def monostatic_diffuse_coupling(
+    beta: float,
+    obstruction: float = 0.0,
+    *,
+    method: str = "radial",
+    n: int = MUTUAL_COHERENCE_DEFAULT_N,
+) -> float:
     """Mean coupling of speckle from a diffuse target lit by the same fiber and telescope.
 
     Monostatic lidar (Winzer & Leeb 1998, Opt. Lett. 23, 986): the transmit field in the pupil is
@@ -430,7 +491,7 @@ def monostatic_diffuse_coupling(beta: float, obstruction: float = 0.0, *, method
         grid, f = _weighted_mode(b, alpha, n)
         lag = _autocorrelation(f)
         c0 = float(np.sum(f * f))
-        total = float(np.sum(lag * lag)) / c0 * grid.pixel_area ** 2  # int C^2 / C(0), D^4
+        total = float(np.sum(lag * lag)) / c0 * grid.pixel_area**2  # int C^2 / C(0), D^4
         return float(total / (grid.area * _mode_norm(b)))
     rho, wts = _radial_nodes(None, _annulus_breakpoints(alpha), geometric=False)
     c = annulus_mode_autocorrelation(rho, b, alpha)

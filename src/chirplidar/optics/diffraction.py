@@ -63,7 +63,9 @@ def _airy_amplitude(x, alpha):
         return full
     ax = alpha * xs
     inner_small = np.abs(alpha * x) < 1e-6
-    inner = np.where(inner_small, 1.0 - (alpha * x) ** 2 / 8.0, jinc(np.where(inner_small, 1.0, ax)))
+    inner = np.where(
+        inner_small, 1.0 - (alpha * x) ** 2 / 8.0, jinc(np.where(inner_small, 1.0, ax))
+    )
     return (full - alpha * alpha * inner) / (1.0 - alpha * alpha)
 
 
@@ -103,11 +105,16 @@ def airy_first_null_rad(diameter_m: float, wavelength_m: float, obstruction: flo
         xs = np.linspace(1e-3, J1_FIRST_ZERO, 2000)
         amp = _airy_amplitude(xs, alpha)
         k = int(np.argmax(amp <= 0.0))
-        x0 = J1_FIRST_ZERO if amp[k] > 0.0 else brentq(lambda z: float(_airy_amplitude(z, alpha)),
-                                                        xs[k - 1], xs[k], xtol=1e-14)
+        x0 = (
+            J1_FIRST_ZERO
+            if amp[k] > 0.0
+            else brentq(lambda z: float(_airy_amplitude(z, alpha)), xs[k - 1], xs[k], xtol=1e-14)
+        )
     s = x0 * lam / (np.pi * d)
     if s >= 1.0:
-        raise ValueError(f"no first null: {x0 / np.pi:.4f} * wavelength_m / diameter_m = {s:.3g} >= 1")
+        raise ValueError(
+            f"no first null: {x0 / np.pi:.4f} * wavelength_m / diameter_m = {s:.3g} >= 1"
+        )
     return float(np.arcsin(s))
 
 
@@ -133,8 +140,16 @@ def _out_coords(n_out: int) -> np.ndarray:
     return np.arange(n_out) - n_out // 2
 
 
-def fraunhofer(pupil_field, dx_m: float, wavelength_m: float, focal_length_m: float, *,
-               method: str = "fft", n_out: int | None = None, dx_out_m: float | None = None):
+def fraunhofer(
+    pupil_field,
+    dx_m: float,
+    wavelength_m: float,
+    focal_length_m: float,
+    *,
+    method: str = "fft",
+    n_out: int | None = None,
+    dx_out_m: float | None = None,
+):
     """Focal-plane field of a pupil field (eq. 2.6.17: the Fraunhofer integral as a Fourier transform).
 
     Parameters
@@ -165,14 +180,16 @@ def fraunhofer(pupil_field, dx_m: float, wavelength_m: float, focal_length_m: fl
     prefactor = -1j * dx * dx / lf
     if method == "fft":
         if dx_out_m is not None:
-            raise ValueError("dx_out_m applies to method='mft' only (the FFT output pitch is "
-                             "wavelength_m * focal_length_m / (n_out * dx_m))")
+            raise ValueError(
+                "dx_out_m applies to method='mft' only (the FFT output pitch is "
+                "wavelength_m * focal_length_m / (n_out * dx_m))"
+            )
         if n_out < n:
             raise ValueError(f"n_out must be >= the pupil size {n} for method='fft', got {n_out}")
         du = lf / (n_out * dx)
         off = (n_out - n) // 2
         padded = np.zeros(field.shape[:-2] + (n_out, n_out), dtype=complex)
-        padded[..., off:off + n, off:off + n] = field
+        padded[..., off : off + n, off : off + n] = field
         spec = np.fft.fftshift(np.fft.fft2(np.fft.ifftshift(padded, axes=(-2, -1))), axes=(-2, -1))
         u = _out_coords(n_out) * du
         # The FFT places pupil sample j at (j + off - n_out // 2) dx; the grid puts it at
@@ -191,9 +208,18 @@ def fraunhofer(pupil_field, dx_m: float, wavelength_m: float, focal_length_m: fl
     raise ValueError(f"method must be 'fft' or 'mft', got {method!r}")
 
 
-def focal_plane_coupling(pupil_field, dx_m: float, wavelength_m: float, focal_length_m: float,
-                         mode_radius_m: float, *, weights=None, mode_offset_m=(0.0, 0.0),
-                         n_out: int | None = None, dx_out_m: float | None = None):
+def focal_plane_coupling(
+    pupil_field,
+    dx_m: float,
+    wavelength_m: float,
+    focal_length_m: float,
+    mode_radius_m: float,
+    *,
+    weights=None,
+    mode_offset_m=(0.0, 0.0),
+    n_out: int | None = None,
+    dx_out_m: float | None = None,
+):
     """Fiber coupling computed in the focal plane: MFT focal field overlapped with the fiber mode.
 
     eta = |int E_f M_f* du dv|^2 / (P * int |M_f|^2 du dv), M_f = exp(-|u - u0|^2 / w0^2),
@@ -220,10 +246,11 @@ def focal_plane_coupling(pupil_field, dx_m: float, wavelength_m: float, focal_le
     du = w0 / 8.0 if dx_out_m is None else positive("dx_out_m", dx_out_m)
     if n_out is None:
         n_out = 2 * int(np.ceil((5.0 * w0 + np.max(np.abs(off))) / du)) + 1
-    ef, u = fraunhofer(w * field, dx, wavelength_m, focal_length_m, method="mft", n_out=n_out,
-                       dx_out_m=du)
-    mx = np.exp(-((u - off[0]) / w0) ** 2)
-    my = np.exp(-((u - off[1]) / w0) ** 2)
+    ef, u = fraunhofer(
+        w * field, dx, wavelength_m, focal_length_m, method="mft", n_out=n_out, dx_out_m=du
+    )
+    mx = np.exp(-(((u - off[0]) / w0) ** 2))
+    my = np.exp(-(((u - off[1]) / w0) ** 2))
     overlap = np.einsum("...ij,i,j->...", ef, my, mx) * du * du
     power = np.einsum("...ij,ij->...", (field * field.conj()).real, w) * dx * dx
     if np.any(power <= 0.0):
@@ -231,4 +258,3 @@ def focal_plane_coupling(pupil_field, dx_m: float, wavelength_m: float, focal_le
     mode_norm = 0.5 * np.pi * w0 * w0
     eta = (overlap * overlap.conj()).real / (power * mode_norm)
     return float(eta) if eta.ndim == 0 else eta
-

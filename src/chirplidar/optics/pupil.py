@@ -69,8 +69,9 @@ def _quadrant_disc_area(x, y, radius):
 
     def prim(t):
         s = np.clip(t / radius, -1.0, 1.0)
-        return 0.5 * (t * np.sqrt(np.maximum(radius * radius - t * t, 0.0))
-                      + radius * radius * np.arcsin(s))
+        return 0.5 * (
+            t * np.sqrt(np.maximum(radius * radius - t * t, 0.0)) + radius * radius * np.arcsin(s)
+        )
 
     outside = xc * y + prim(x) - prim(xc)
     return np.where(inside, x * y, outside)
@@ -85,8 +86,12 @@ def disc_pixel_area(x0, x1, y0, y1, radius) -> np.ndarray:
     """Exact area of the rectangle [x0, x1] x [y0, y1] inside the disc |r| <= radius centred at 0."""
     if radius <= 0.0:
         return np.zeros(np.broadcast(x0, x1, y0, y1).shape)
-    a = (_signed_area(x1, y1, radius) - _signed_area(x0, y1, radius)
-         - _signed_area(x1, y0, radius) + _signed_area(x0, y0, radius))
+    a = (
+        _signed_area(x1, y1, radius)
+        - _signed_area(x0, y1, radius)
+        - _signed_area(x1, y0, radius)
+        + _signed_area(x0, y0, radius)
+    )
     return np.maximum(a, 0.0)
 
 

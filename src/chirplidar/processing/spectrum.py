@@ -27,9 +27,9 @@ import scipy.fft
 # Neighbouring bins used by the Dirichlet interpolation; truncation error ~ 1/(pi^2 L) of the
 # noise level, far below the scatter of a single periodogram bin.
 _KERNEL_HALF_WIDTH = 48
-_FINE_STEP = 1.0 / 16.0      # fine-grid step, in native bins (then parabolic refinement)
-_THREEDB_SPAN = 4.0          # +- native bins searched for the 3 dB points on the fine grid
-_CROSSING_WINDOW = 64        # +- bins of the spectrum searched first for the 3 dB points
+_FINE_STEP = 1.0 / 16.0  # fine-grid step, in native bins (then parabolic refinement)
+_THREEDB_SPAN = 4.0  # +- native bins searched for the 3 dB points on the fine grid
+_CROSSING_WINDOW = 64  # +- bins of the spectrum searched first for the 3 dB points
 # Noise windows (see _noise_floor): how many, stepped outward from the peak, are tried; how many
 # beyond a window make its flat reference; the one-sided test level in standard errors (a flat
 # strip fails it ~1 % of the time, periodogram bins being skewed, and the next window is read
@@ -39,7 +39,7 @@ _NOISE_WINDOWS = 16
 _NOISE_REF_WINDOWS = 4
 _NOISE_FLAT_Z = 3.0
 _MIN_NOISE_BINS = 8
-_REGION_BLOCK = 1 << 18       # bins gathered per pass of _region_stats (2 MB per array)
+_REGION_BLOCK = 1 << 18  # bins gathered per pass of _region_stats (2 MB per array)
 
 
 @dataclass(frozen=True)
@@ -47,11 +47,11 @@ class PeakResult:
     """Per-record results of spectral analysis (all arrays have the batch shape)."""
 
     f_peak_hz: np.ndarray
-    peak_power_w: np.ndarray       # tone power as a spectrum analyzer reads it (Crx)
-    noise_psd_w_per_hz: np.ndarray # one-sided noise PSD beside the peak
+    peak_power_w: np.ndarray  # tone power as a spectrum analyzer reads it (Crx)
+    noise_psd_w_per_hz: np.ndarray  # one-sided noise PSD beside the peak
     f_lo_hz: np.ndarray
     f_hi_hz: np.ndarray
-    snr: np.ndarray                # linear, in the RBW
+    snr: np.ndarray  # linear, in the RBW
     spectrum_f_hz: np.ndarray | None = None
     spectrum_w_per_hz: np.ndarray | None = None
 
@@ -68,8 +68,11 @@ def _dirichlet_kernel(n: int) -> np.ndarray:
     u = _OFFSETS[:, None] - _MREL[None, :]
     near = np.abs(u) < 1e-12
     u_safe = np.where(near, 1.0, u)
-    kern = np.exp(-1j * np.pi * u_safe * (n - 1) / n) * np.sin(np.pi * u_safe) / (
-        n * np.sin(np.pi * u_safe / n))
+    kern = (
+        np.exp(-1j * np.pi * u_safe * (n - 1) / n)
+        * np.sin(np.pi * u_safe)
+        / (n * np.sin(np.pi * u_safe / n))
+    )
     kern = np.where(near, 1.0, kern)
     kern.setflags(write=False)
     return kern
@@ -91,8 +94,15 @@ def _parabolic_batch(y_m1, y0, y_p1):
     return np.where(ok, np.clip(d, -0.5, 0.5), 0.0)
 
 
-def _crossings(x: np.ndarray, y: np.ndarray, level: np.ndarray, start: np.ndarray,
-               lo: np.ndarray, hi: np.ndarray, window: int | None = None):
+def _crossings(
+    x: np.ndarray,
+    y: np.ndarray,
+    level: np.ndarray,
+    start: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    window: int | None = None,
+):
     """Per row b, where y[b] first falls below level[b] walking left and right from start[b]
     (linear interpolation), looking only within indices lo[b]..hi[b]; NaN where it never does.
 
@@ -113,8 +123,9 @@ def _crossings(x: np.ndarray, y: np.ndarray, level: np.ndarray, start: np.ndarra
     redo = np.flatnonzero((np.isnan(left) & (c0 > lo)) | (np.isnan(right) & (c0 + width - 1 < hi)))
     if redo.size:
         xr = x if np.ndim(x) == 1 else x[redo]
-        left[redo], right[redo] = _crossings_full(xr, y[redo], level[redo], start[redo],
-                                                  lo[redo], hi[redo])
+        left[redo], right[redo] = _crossings_full(
+            xr, y[redo], level[redo], start[redo], lo[redo], hi[redo]
+        )
     return left, right
 
 
@@ -128,12 +139,12 @@ def _crossings_full(x, y, level, start, lo, hi):
     # Left: the largest j < start below the level; right: the smallest j > start.
     left = np.where(below & (idx < start[:, None]), idx, -1).max(axis=1)
     right = np.where(below & (idx > start[:, None]), idx, n).min(axis=1)
-    start_ok = y[rows, start] >= level       # a walk that starts below the level finds nothing
+    start_ok = y[rows, start] >= level  # a walk that starts below the level finds nothing
     out = []
     for j, nb in ((left, left + 1), (right, right - 1)):
         found = (j >= 0) & (j < n) & start_ok
         jj, kk = np.clip(j, 0, n - 1), np.clip(nb, 0, n - 1)
-        y0, y1 = y[rows, kk], y[rows, jj]            # y0 at or above the level, y1 below
+        y0, y1 = y[rows, kk], y[rows, jj]  # y0 at or above the level, y1 below
         with np.errstate(invalid="ignore", divide="ignore"):
             frac = np.where(y0 != y1, (y0 - level) / (y0 - y1), 0.0)
         val = xb[rows, kk] + frac * (xb[rows, jj] - xb[rows, kk])
@@ -160,8 +171,16 @@ def _range_sums(y: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarra
     return cs[rows, stop] - cs[rows, start]
 
 
-def _noise_floor(psd: np.ndarray, f: np.ndarray, f_pk: np.ndarray, first: int, last: int,
-                 span_hz: float, guard_hz: float, zero_pad: int):
+def _noise_floor(
+    psd: np.ndarray,
+    f: np.ndarray,
+    f_pk: np.ndarray,
+    first: int,
+    last: int,
+    span_hz: float,
+    guard_hz: float,
+    zero_pad: int,
+):
     """Per row: the mean PSD over the nearest noise window that the tone's own skirt leaves flat,
     and its bin count (0 when no window holds enough bins: the caller falls back).
 
@@ -185,14 +204,15 @@ def _noise_floor(psd: np.ndarray, f: np.ndarray, f_pk: np.ndarray, first: int, l
     if width <= 0:
         return np.zeros(batch), np.zeros(batch, int)
     # Region edges (distances from f_pk): the guard's outer strip, then the windows.
-    edges = np.concatenate([[guard_hz - min(width, 0.5 * guard_hz)],
-                            guard_hz + width * np.arange(_NOISE_WINDOWS + 1)])
+    edges = np.concatenate(
+        [[guard_hz - min(width, 0.5 * guard_hz)], guard_hz + width * np.arange(_NOISE_WINDOWS + 1)]
+    )
     # First the regions test 0 needs (strip, window 0, windows 2..1+R): most rows stop there.
     near = 3 + _NOISE_REF_WINDOWS
     noise, n_win = np.zeros(batch), np.zeros(batch, int)
     rows = np.arange(batch)
     for reach in (near, _NOISE_WINDOWS + 1):
-        stats = _region_stats(psd[rows], f, f_pk[rows], first, last, edges[:reach + 1], zero_pad)
+        stats = _region_stats(psd[rows], f, f_pk[rows], first, last, edges[: reach + 1], zero_pad)
         flat, usable = _flat_windows(*stats, zero_pad)
         if reach == near:
             done = flat[:, 0]
@@ -214,7 +234,9 @@ def _noise_floor(psd: np.ndarray, f: np.ndarray, f_pk: np.ndarray, first: int, l
     return noise, n_win
 
 
-def _region_stats(psd, f, f_pk, first, last, edges, zero_pad: int):
+def _region_stats(
+    psd, f, f_pk, first, last, edges, zero_pad: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per region edges[m] < |f - f_pk| <= edges[m + 1] (both sides, within the bins first..last):
     bin count, sum and sum of squares of the PSD, and the sums of products of bins one and two
     native bins (zero_pad, 2 zero_pad bins) apart, each pair counted in the region of its bin
@@ -233,20 +255,22 @@ def _region_stats(psd, f, f_pk, first, last, edges, zero_pad: int):
     for start, pos, sign in ((lo[:, -1], lo, -1.0), (hi[:, 0], hi, 1.0)):
         pos = pos - start[:, None]
         width = max(int(np.max(pos, initial=0)), 1)
-        step = max(1, _REGION_BLOCK // width)      # rows per pass: temporaries stay small
+        step = max(1, _REGION_BLOCK // width)  # rows per pass: temporaries stay small
         cols_all = start[:, None] + np.arange(width + lags[-1])
         for r0 in range(0, batch, step):
             r = slice(r0, r0 + step)
             vals = np.take_along_axis(psd[r], np.minimum(cols_all[r], n_bins - 1), axis=1)
             terms = [vals[:, :width], np.multiply(vals[:, :width], vals[:, :width], dtype=float)]
-            terms += [np.multiply(vals[:, :width], vals[:, lag:lag + width], dtype=float)
-                      for lag in lags]
-            for y, out in zip(terms, sums):
+            terms += [
+                np.multiply(vals[:, :width], vals[:, lag : lag + width], dtype=float)
+                for lag in lags
+            ]
+            for y, out in zip(terms, sums, strict=True):
                 cs = np.zeros((y.shape[0], width + 1))
                 np.cumsum(y, axis=1, dtype=float, out=cs[:, 1:])
                 c = np.take_along_axis(cs, pos[r], axis=1)
                 out[r] += sign * (c[:, 1:] - c[:, :-1])
-    return (cnt, *sums)
+    return cnt, sums[0], sums[1], sums[2], sums[3]
 
 
 def _flat_windows(cnt, s1, s2, p1, p2, zero_pad: int):
@@ -256,8 +280,10 @@ def _flat_windows(cnt, s1, s2, p1, p2, zero_pad: int):
     j+1+_NOISE_REF_WINDOWS pooled (not j+1: the window read when test j fails must not have made
     it fail)."""
     nj = cnt.shape[1] - 1
-    c1, c2, q1, q2, cc = (np.concatenate([np.zeros((cnt.shape[0], 1)), np.cumsum(x, axis=1)],
-                                         axis=1) for x in (s1, s2, p1, p2, cnt))
+    c1, c2, q1, q2, cc = (
+        np.concatenate([np.zeros((cnt.shape[0], 1)), np.cumsum(x, axis=1)], axis=1)
+        for x in (s1, s2, p1, p2, cnt)
+    )
     j = np.arange(nj)
     bottom, top = np.minimum(j + 3, nj + 1), np.minimum(j + 3 + _NOISE_REF_WINDOWS, nj + 1)
     r_cnt, r_s1, r_s2, r_p1, r_p2 = (x[:, top] - x[:, bottom] for x in (cc, c1, c2, q1, q2))
@@ -279,11 +305,22 @@ def _flat_windows(cnt, s1, s2, p1, p2, zero_pad: int):
     return flat, usable
 
 
-def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: float,
-                    highpass_hz: float, zero_pad: int, peak_method: str, noise_span_hz: float,
-                    noise_guard_hz: float, averaging: str = "coherent",
-                    transfer=None, keep_spectrum: bool = False,
-                    search_max_hz: float | None = None) -> PeakResult:
+def analyze_records(
+    v: np.ndarray,
+    fs_hz: float,
+    load_ohm: float,
+    *,
+    rbw_hz: float,
+    highpass_hz: float,
+    zero_pad: int,
+    peak_method: str,
+    noise_span_hz: float,
+    noise_guard_hz: float,
+    averaging: str = "coherent",
+    transfer=None,
+    keep_spectrum: bool = False,
+    search_max_hz: float | None = None,
+) -> PeakResult:
     """Spectrum, peak, 3 dB points, noise level and SNR of voltage records.
 
     Parameters
@@ -301,20 +338,138 @@ def analyze_records(v: np.ndarray, fs_hz: float, load_ohm: float, *, rbw_hz: flo
         v = v.mean(axis=1, keepdims=True)
     X = scipy.fft.rfft(v, n=m, axis=-1, workers=-1)
     # One-sided PSD in W/Hz (eqs. 2.6.3-2.6.4 made one-sided).
-    power = X.real ** 2 + X.imag ** 2
-    psd = (2.0 / (n * fs_hz * load_ohm)) * (power[:, 0] if power.shape[1] == 1 else power.mean(axis=1))
-    return analyze_spectrum(psd, fs_hz, n, zero_pad=zero_pad, rbw_hz=rbw_hz,
-                            highpass_hz=highpass_hz, peak_method=peak_method,
-                            noise_span_hz=noise_span_hz, noise_guard_hz=noise_guard_hz,
-                            transfer=transfer, keep_spectrum=keep_spectrum,
-                            search_max_hz=search_max_hz, dft=X, load_ohm=load_ohm)
+    power = X.real**2 + X.imag**2
+    psd = (2.0 / (n * fs_hz * load_ohm)) * (
+        power[:, 0] if power.shape[1] == 1 else power.mean(axis=1)
+    )
+    return analyze_spectrum(
+        psd,
+        fs_hz,
+        n,
+        zero_pad=zero_pad,
+        rbw_hz=rbw_hz,
+        highpass_hz=highpass_hz,
+        peak_method=peak_method,
+        noise_span_hz=noise_span_hz,
+        noise_guard_hz=noise_guard_hz,
+        transfer=transfer,
+        keep_spectrum=keep_spectrum,
+        search_max_hz=search_max_hz,
+        dft=X,
+        load_ohm=load_ohm,
+    )
 
 
-def analyze_spectrum(psd: np.ndarray, fs_hz: float, n: int, *, zero_pad: int, rbw_hz: float,
-                     highpass_hz: float, peak_method: str, noise_span_hz: float,
-                     noise_guard_hz: float, transfer=None, keep_spectrum: bool = False,
-                     search_max_hz: float | None = None, dft: np.ndarray | None = None,
-                     load_ohm: float | None = None) -> PeakResult:
+def _parabolic_peak(psd, f, kp, f_pk, p_pk, fs_hz: float, m: int):
+    """(f_pk, p_pk): the peaks at bins ``kp`` refined by a parabola through the log PSD of the
+    bin and its neighbours (bins fs_hz / m apart); the end bins keep ``f_pk`` and ``p_pk``."""
+    n_bins = psd.shape[1]
+    rows = np.arange(psd.shape[0])
+    tiny = np.finfo(float).tiny
+    inner = (kp > 0) & (kp < n_bins - 1)
+    k0 = np.clip(kp, 1, n_bins - 2)
+    lg = np.log(
+        np.maximum(
+            np.stack([psd[rows, k0 - 1], psd[rows, k0], psd[rows, k0 + 1]], dtype=float), tiny
+        )
+    )
+    d = np.where(inner, _parabolic_batch(*lg), 0.0)
+    f_pk = np.where(inner, f[kp] + d * fs_hz / m, f_pk)
+    p_pk = np.where(inner, np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d), p_pk)
+    return f_pk, p_pk
+
+
+def _dtft_peak(dft, kp, n, zero_pad, fs_hz, load_ohm, highpass_hz, search_max_hz, transfer):
+    """(f_pk, p_pk, lo, hi): peak frequency (Hz) and PSD (W/Hz), and 3 dB points (Hz, NaN
+    where none), from the records' DTFT on a fine grid about the padded-PSD peak bins ``kp``."""
+    rows = np.arange(kp.shape[0])
+    tiny = np.finfo(float).tiny
+    df_native = fs_hz / n
+    # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
+    k_nat = np.rint(kp / zero_pad).astype(int)
+    top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
+    nu = k_nat[:, None] + _OFFSETS[None, :]  # (B, F)
+    valid = (nu * df_native >= highpass_hz) & (nu <= top)
+    native = dft[..., ::zero_pad]  # (B, A, n // 2 + 1)
+    cols = k_nat[:, None] + _MREL[None, :]  # (B, 2 half_w + 1)
+    inside = (cols >= 0) & (cols < native.shape[2])  # bins beyond the ends: 0
+    near = np.take_along_axis(
+        native,
+        np.broadcast_to(
+            np.clip(cols, 0, native.shape[2] - 1)[:, None, :], native.shape[:2] + cols.shape[1:]
+        ),
+        axis=2,
+    )
+    near = np.multiply(near, inside[:, None, :], dtype=complex)  # complex128 for BLAS
+    fine = (near.reshape(-1, near.shape[2]) @ _dirichlet_kernel(n).T).reshape(
+        near.shape[:2] + (-1,)
+    )  # (B, A, F), one GEMM
+    Pn = (fine.real**2 + fine.imag**2).sum(axis=1) * (
+        2.0 / (n * fs_hz * load_ohm * native.shape[1])
+    )
+    if transfer is not None:
+        Pn *= np.abs(transfer(nu * df_native)) ** 2
+    Pm = np.where(valid, Pn, -np.inf)
+    i = np.argmax(Pm, axis=1)
+    n_fine = _OFFSETS.size
+    has_nb = (i > 0) & (i < n_fine - 1)
+    im, ip = np.clip(i - 1, 0, n_fine - 1), np.clip(i + 1, 0, n_fine - 1)
+    has_nb &= valid[rows, im] & valid[rows, ip]
+    lg = np.log(np.maximum(np.stack([Pn[rows, im], Pn[rows, i], Pn[rows, ip]]), tiny))
+    d = np.where(has_nb, _parabolic_batch(*lg), 0.0)
+    f_pk = (nu[rows, i] + d * _FINE_STEP) * df_native
+    p_pk = np.where(d == 0.0, Pn[rows, i], np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
+    # 3 dB points on the fine DTFT, within its valid rows.
+    v_lo = np.argmax(valid, axis=1)
+    v_hi = n_fine - 1 - np.argmax(valid[:, ::-1], axis=1)
+    lo, hi = _crossings(nu * df_native, Pn, 0.5 * p_pk, i, v_lo, v_hi)
+    return f_pk, p_pk, lo, hi
+
+
+def _whole_band_noise(noise, n_win, psd, f, f_pk, first, last, guard_hz: float) -> None:
+    """Where fewer than ``_MIN_NOISE_BINS`` bins lie beside the peak, set ``noise`` (in place)
+    to the mean PSD of the whole search band (bins first..last) without the guard bins."""
+    g0 = np.clip(np.searchsorted(f, f_pk - guard_hz), first, last + 1)
+    g1 = np.clip(np.searchsorted(f, f_pk + guard_hz, side="right"), first, last + 1)
+    few = np.flatnonzero(n_win < _MIN_NOISE_BINS)
+    if few.size:
+        s_all = np.sum(psd[few, first : last + 1], axis=1, dtype=float) - _range_sums(
+            psd[few], g0[few], g1[few]
+        )
+        with np.errstate(invalid="ignore", divide="ignore"):
+            noise[few] = s_all / ((last + 1 - first) - (g1[few] - g0[few]))
+
+
+def _detected_psd(psd, transfer, f, m: int, fs_hz: float) -> np.ndarray:
+    """A copy of ``psd`` times the detector's |transfer|^2 on the bins ``f`` (if any).
+
+    Single-precision spectra (the baseband tier's) stay single for the passes over every bin;
+    values read from them are taken in double.
+    """
+    dtype = np.float32 if np.asarray(psd).dtype == np.float32 else np.float64
+    if transfer is not None:
+        h = transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f)
+        return np.multiply(psd, (h.real**2 + h.imag**2).astype(dtype), dtype=dtype)
+    return np.array(psd, dtype=dtype)
+
+
+def analyze_spectrum(
+    psd: np.ndarray,
+    fs_hz: float,
+    n: int,
+    *,
+    zero_pad: int,
+    rbw_hz: float,
+    highpass_hz: float,
+    peak_method: str,
+    noise_span_hz: float,
+    noise_guard_hz: float,
+    transfer=None,
+    keep_spectrum: bool = False,
+    search_max_hz: float | None = None,
+    dft: np.ndarray | None = None,
+    load_ohm: float | None = None,
+) -> PeakResult:
     """Peak, 3 dB points, noise level and SNR of one-sided PSDs (batch, m // 2 + 1) in W/Hz of
     records of ``n`` samples zero-padded to m = n x ``zero_pad`` (before the detector transfer).
 
@@ -324,74 +479,33 @@ def analyze_spectrum(psd: np.ndarray, fs_hz: float, n: int, *, zero_pad: int, rb
     batch, n_bins = np.shape(psd)
     m = n * zero_pad
     f = np.arange(n_bins) * (fs_hz / m)
-    # Single-precision spectra (the baseband tier's) stay single for the passes over every bin;
-    # values read from them are taken in double.
-    dtype = np.float32 if np.asarray(psd).dtype == np.float32 else np.float64
-    if transfer is not None:
-        h = transfer.on_grid(m, fs_hz) if hasattr(transfer, "on_grid") else transfer(f)
-        psd = np.multiply(psd, (h.real ** 2 + h.imag ** 2).astype(dtype), dtype=dtype)  # a copy
-    else:
-        psd = np.array(psd, dtype=dtype)
+    psd = _detected_psd(psd, transfer, f, m, fs_hz)
     df_native = fs_hz / n
     search = f >= highpass_hz
     if search_max_hz is not None:
         search &= f <= search_max_hz
     if not np.any(search):
-        raise ValueError("no FFT bin between processing.highpass_hz (sys.f_highpass) and the peak "
-                         "search maximum")
+        raise ValueError(
+            "no FFT bin between processing.highpass_hz (sys.f_highpass) and the peak search maximum"
+        )
     first = int(np.argmax(search))
     last = int(n_bins - 1 - np.argmax(search[::-1]))
     rows = np.arange(batch)
-    kp = first + np.argmax(psd[:, first:last + 1], axis=1)
+    kp = first + np.argmax(psd[:, first : last + 1], axis=1)
     f_pk, p_pk = f[kp], psd[rows, kp].astype(float)
-    tiny = np.finfo(float).tiny
     lo = hi = None
     if peak_method == "parabolic":
-        inner = (kp > 0) & (kp < n_bins - 1)
-        k0 = np.clip(kp, 1, n_bins - 2)
-        lg = np.log(np.maximum(np.stack([psd[rows, k0 - 1], psd[rows, k0], psd[rows, k0 + 1]],
-                                        dtype=float), tiny))
-        d = np.where(inner, _parabolic_batch(*lg), 0.0)
-        f_pk = np.where(inner, f[kp] + d * fs_hz / m, f_pk)
-        p_pk = np.where(inner, np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d), p_pk)
+        f_pk, p_pk = _parabolic_peak(psd, f, kp, f_pk, p_pk, fs_hz, m)
     elif peak_method == "dtft":
         if dft is None or load_ohm is None:
             raise ValueError("peak_method 'dtft' needs the records' DFT (use analyze_records)")
-        # Native-grid DFT is every zero_pad-th padded bin (coherent records only).
-        k_nat = np.rint(kp / zero_pad).astype(int)
-        top = n / 2 if search_max_hz is None else min(n / 2, search_max_hz / df_native)
-        nu = k_nat[:, None] + _OFFSETS[None, :]                       # (B, F)
-        valid = (nu * df_native >= highpass_hz) & (nu <= top)
-        native = dft[..., ::zero_pad]                                  # (B, A, n // 2 + 1)
-        cols = k_nat[:, None] + _MREL[None, :]                         # (B, 2 half_w + 1)
-        inside = (cols >= 0) & (cols < native.shape[2])                # bins beyond the ends: 0
-        near = np.take_along_axis(
-            native, np.broadcast_to(np.clip(cols, 0, native.shape[2] - 1)[:, None, :],
-                                    native.shape[:2] + cols.shape[1:]), axis=2)
-        near = np.multiply(near, inside[:, None, :], dtype=complex)    # complex128 for BLAS
-        fine = (near.reshape(-1, near.shape[2]) @ _dirichlet_kernel(n).T).reshape(
-            near.shape[:2] + (-1,))                                    # (B, A, F), one GEMM
-        Pn = (fine.real ** 2 + fine.imag ** 2).sum(axis=1) * (2.0 / (n * fs_hz * load_ohm
-                                                                     * native.shape[1]))
-        if transfer is not None:
-            Pn *= np.abs(transfer(nu * df_native)) ** 2
-        Pm = np.where(valid, Pn, -np.inf)
-        i = np.argmax(Pm, axis=1)
-        n_fine = _OFFSETS.size
-        has_nb = (i > 0) & (i < n_fine - 1)
-        im, ip = np.clip(i - 1, 0, n_fine - 1), np.clip(i + 1, 0, n_fine - 1)
-        has_nb &= valid[rows, im] & valid[rows, ip]
-        lg = np.log(np.maximum(np.stack([Pn[rows, im], Pn[rows, i], Pn[rows, ip]]), tiny))
-        d = np.where(has_nb, _parabolic_batch(*lg), 0.0)
-        f_pk = (nu[rows, i] + d * _FINE_STEP) * df_native
-        p_pk = np.where(d == 0.0, Pn[rows, i], np.exp(lg[1] - 0.25 * (lg[0] - lg[2]) * d))
-        # 3 dB points on the fine DTFT, within its valid rows.
-        v_lo = np.argmax(valid, axis=1)
-        v_hi = n_fine - 1 - np.argmax(valid[:, ::-1], axis=1)
-        lo, hi = _crossings(nu * df_native, Pn, 0.5 * p_pk, i, v_lo, v_hi)
+        f_pk, p_pk, lo, hi = _dtft_peak(
+            dft, kp, n, zero_pad, fs_hz, load_ohm, highpass_hz, search_max_hz, transfer
+        )
     elif peak_method != "bin":
-        raise ValueError(f"processing.peak_method must be 'bin', 'parabolic' or 'dtft', got "
-                         f"{peak_method!r}")
+        raise ValueError(
+            f"processing.peak_method must be 'bin', 'parabolic' or 'dtft', got {peak_method!r}"
+        )
     # 3 dB points on the (padded) spectrum where the fine grid has none.
     zeros, ends = np.zeros(batch, int), np.full(batch, n_bins - 1)
     s_lo, s_hi = _crossings(f, psd, 0.5 * p_pk, kp, zeros, ends, window=_CROSSING_WINDOW)
@@ -401,20 +515,16 @@ def analyze_spectrum(psd: np.ndarray, fs_hz: float, n: int, *, zero_pad: int, rb
     hi = np.where(np.isnan(hi), f[-1], hi)
     # Noise: mean PSD over a span beside the peak, guard bins excluded, within the search band
     # (the bins first..last), moved outward past the tone's own skirt (see _noise_floor).
-    noise, n_win = _noise_floor(psd, f, f_pk, first, last, noise_span_hz, noise_guard_hz,
-                                zero_pad)
-    g0 = np.clip(np.searchsorted(f, f_pk - noise_guard_hz), first, last + 1)
-    g1 = np.clip(np.searchsorted(f, f_pk + noise_guard_hz, side="right"), first, last + 1)
-    few = np.flatnonzero(n_win < _MIN_NOISE_BINS)  # too few bins beside the peak: whole band
-    if few.size:
-        s_all = (np.sum(psd[few, first:last + 1], axis=1, dtype=float)
-                 - _range_sums(psd[few], g0[few], g1[few]))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            noise[few] = s_all / ((last + 1 - first) - (g1[few] - g0[few]))
+    noise, n_win = _noise_floor(psd, f, f_pk, first, last, noise_span_hz, noise_guard_hz, zero_pad)
+    _whole_band_noise(noise, n_win, psd, f, f_pk, first, last, noise_guard_hz)
     peak_w = p_pk * df_native  # tone power, eq. 2.6.6 with df = 1/T
     return PeakResult(
-        f_peak_hz=np.asarray(f_pk, float), peak_power_w=np.asarray(peak_w, float),
-        noise_psd_w_per_hz=noise, f_lo_hz=lo, f_hi_hz=hi, snr=peak_w / (noise * rbw_hz),
+        f_peak_hz=np.asarray(f_pk, float),
+        peak_power_w=np.asarray(peak_w, float),
+        noise_psd_w_per_hz=noise,
+        f_lo_hz=lo,
+        f_hi_hz=hi,
+        snr=peak_w / (noise * rbw_hz),
         spectrum_f_hz=f if keep_spectrum else None,
         spectrum_w_per_hz=psd.astype(float) if keep_spectrum else None,
     )

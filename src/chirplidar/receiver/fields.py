@@ -25,8 +25,9 @@ class Field:
 
     def power(self) -> np.ndarray:
         if self.noise is None:
-            return np.broadcast_to(self.amp * self.amp, np.broadcast_shapes(
-                np.shape(self.amp), np.shape(self.phase)))
+            return np.broadcast_to(
+                self.amp * self.amp, np.broadcast_shapes(np.shape(self.amp), np.shape(self.phase))
+            )
         return np.abs(self.complex()) ** 2
 
 
@@ -40,8 +41,9 @@ def port_power(s_lo: complex, s_sig: complex, lo: Field, sig: Field) -> np.ndarr
     return abs(s_lo) ** 2 * lo.power() + abs(s_sig) ** 2 * sig.power() + cross
 
 
-def port_coefficients(s_lo: complex, s_sig: complex, lo_scale: float, sig_scale: float,
-                      dphase) -> tuple[float, float, np.ndarray]:
+def port_coefficients(
+    s_lo: complex, s_sig: complex, lo_scale: float, sig_scale: float, dphase
+) -> tuple[float, float, np.ndarray]:
     """(cL, cS, cX) with port power = cL a_lo^2 + cS a_sig^2 + cX a_lo a_sig.
 
     For unit MZM amplitudes a (the field is sqrt(scale) a exp(j phi)) whose phase difference
@@ -56,7 +58,7 @@ def port_coefficients(s_lo: complex, s_sig: complex, lo_scale: float, sig_scale:
 def combine(coefs, arrays):
     """sum_i coef_i * array_i, skipping zero coefficients (a balanced pair cancels its LO term)."""
     out = None
-    for c, a in zip(coefs, arrays):
+    for c, a in zip(coefs, arrays, strict=True):
         if np.all(np.asarray(c) == 0):
             continue
         term = c * a

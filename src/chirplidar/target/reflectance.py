@@ -53,8 +53,10 @@ _PHI_W = 0.5 * np.pi * _WEIGHTS
 def _incidence(incidence_rad) -> np.ndarray:
     theta = real_array("incidence_rad", incidence_rad)
     if np.any(theta < 0.0):
-        raise ValueError("incidence_rad must be >= 0 (the angle between the beam and the surface "
-                         "normal, 0 = normal incidence)")
+        raise ValueError(
+            "incidence_rad must be >= 0 (the angle between the beam and the surface "
+            "normal, 0 = normal incidence)"
+        )
     return theta
 
 
@@ -127,8 +129,10 @@ def cox_munk_mss(wind_speed_mps):
     """
     u = non_negative_array("wind_speed_mps", wind_speed_mps)
     if np.any(u > COX_MUNK_MAX_WIND_MPS):
-        raise ValueError(f"wind_speed_mps must be <= {COX_MUNK_MAX_WIND_MPS} m/s (range of the "
-                         "Cox-Munk measurements); pass the mean-square slope directly")
+        raise ValueError(
+            f"wind_speed_mps must be <= {COX_MUNK_MAX_WIND_MPS} m/s (range of the "
+            "Cox-Munk measurements); pass the mean-square slope directly"
+        )
     return out(COX_MUNK_MSS_OFFSET + COX_MUNK_MSS_PER_MPS * u)
 
 
@@ -139,8 +143,9 @@ def receiver_cone_half_angle_rad(aperture_area_m2, range_m):
     return out(np.sqrt(area / np.pi) / rng_m)
 
 
-def specular_return_fraction(incidence_rad, mss, fresnel_reflectance, cone_half_angle_rad,
-                             beam_divergence_rad):
+def specular_return_fraction(
+    incidence_rad, mss, fresnel_reflectance, cone_half_angle_rad, beam_divergence_rad
+):
     """Fraction of the transmitted power a facet (specular) surface sends back into the receiver.
 
     incidence_rad: beam angle from the mean surface normal (rad, >= 0; >= pi/2 gives 0);
@@ -178,18 +183,20 @@ def specular_return_fraction(incidence_rad, mss, fresnel_reflectance, cone_half_
     cone = positive_array("cone_half_angle_rad", cone_half_angle_rad)
     div = non_negative_array("beam_divergence_rad", beam_divergence_rad)
     if np.any(cone > _MAX_SMALL_ANGLE_RAD):
-        raise ValueError(f"cone_half_angle_rad must be <= {_MAX_SMALL_ANGLE_RAD} rad (small-angle "
-                         "model)")
+        raise ValueError(
+            f"cone_half_angle_rad must be <= {_MAX_SMALL_ANGLE_RAD} rad (small-angle model)"
+        )
     if np.any(div > _MAX_SMALL_ANGLE_RAD):
-        raise ValueError(f"beam_divergence_rad must be <= {_MAX_SMALL_ANGLE_RAD} rad (small-angle "
-                         "model)")
+        raise ValueError(
+            f"beam_divergence_rad must be <= {_MAX_SMALL_ANGLE_RAD} rad (small-angle model)"
+        )
     theta, s2, rho_f, cone, div = np.broadcast_arrays(theta, s2, rho_f, cone, div)
     shape = theta.shape
     theta, s2, rho_f, cone, div = (np.ravel(x) for x in (theta, s2, rho_f, cone, div))
 
     result = np.zeros(theta.size)
     front = theta < _HALF_PI
-    a = 0.5 * cone                          # disk radius in facet-normal angle
+    a = 0.5 * cone  # disk radius in facet-normal angle
     s2_eff = s2 + 0.5 * div**2
     th = np.where(front, theta, 0.0)
     c = np.cos(th)
@@ -204,9 +211,9 @@ def specular_return_fraction(incidence_rad, mss, fresnel_reflectance, cone_half_
     if np.any(rough):
         c_r, t_r, a_r = c[rough], t[rough], a[rough]
         sig = np.sqrt(0.5 * s2_eff[rough])
-        sig_u = sig * c_r**2                # in-plane spread of the facet-normal angle
-        sig_v = sig * c_r                   # cross-plane spread
-        mu = s[rough] * c_r                 # |mean| of the in-plane angle (reflected to >= 0)
+        sig_u = sig * c_r**2  # in-plane spread of the facet-normal angle
+        sig_v = sig * c_r  # cross-plane spread
+        mu = s[rough] * c_r  # |mean| of the in-plane angle (reflected to >= 0)
         f_lo = special.ndtr((-a_r - mu) / sig_u)
         f_hi = special.ndtr((a_r - mu) / sig_u)
         width = f_hi - f_lo

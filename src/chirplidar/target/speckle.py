@@ -46,10 +46,10 @@ from .._checks import count, generator, out, positive_array, real_array
 
 
 def _cells(value) -> float:
-    m = real_array("cells", value)
-    if m.ndim != 0:
-        raise ValueError(f"cells must be a scalar, got an array of shape {m.shape}")
-    m = float(m)
+    arr = real_array("cells", value)
+    if arr.ndim != 0:
+        raise ValueError(f"cells must be a scalar, got an array of shape {arr.shape}")
+    m = float(arr)
     if m < 1.0:
         raise ValueError(f"cells (speckle cells integrated, M) must be >= 1, got {m!r}")
     return m
@@ -78,8 +78,9 @@ def speckle_phase(n, rng):
     return rng.uniform(0.0, 2.0 * np.pi, n)
 
 
-def speckle_cells(detection, *, wavelength_m=None, range_m=None, footprint_area_m2=None,
-                  receiver_area_m2=None):
+def speckle_cells(
+    detection, *, wavelength_m=None, range_m=None, footprint_area_m2=None, receiver_area_m2=None
+):
     """Number M of independent speckle cells the receiver integrates (spatial diversity only).
 
     detection: "coherent" — mixing with a single LO mode or coupling into a single-mode fiber
@@ -92,20 +93,31 @@ def speckle_cells(detection, *, wavelength_m=None, range_m=None, footprint_area_
     Temporal diversity (a chirp resolving the footprint's range spread) is not counted here.
     Returns float64 (float for scalars).
     """
-    given = {k: v for k, v in {"wavelength_m": wavelength_m, "range_m": range_m,
-                               "footprint_area_m2": footprint_area_m2,
-                               "receiver_area_m2": receiver_area_m2}.items() if v is not None}
+    given = {
+        k: v
+        for k, v in {
+            "wavelength_m": wavelength_m,
+            "range_m": range_m,
+            "footprint_area_m2": footprint_area_m2,
+            "receiver_area_m2": receiver_area_m2,
+        }.items()
+        if v is not None
+    }
     arrays = {k: positive_array(k, v) for k, v in given.items()}
     if detection == "coherent":
         shape = np.broadcast_shapes(*(a.shape for a in arrays.values())) if arrays else ()
         return out(np.ones(shape))
     if detection == "direct":
-        missing = [k for k in ("wavelength_m", "range_m", "footprint_area_m2", "receiver_area_m2")
-                   if k not in arrays]
+        missing = [
+            k
+            for k in ("wavelength_m", "range_m", "footprint_area_m2", "receiver_area_m2")
+            if k not in arrays
+        ]
         if missing:
             raise ValueError(f"detection='direct' needs {', '.join(missing)}")
-        coherence_area = (arrays["wavelength_m"] * arrays["range_m"]) ** 2 \
-            / arrays["footprint_area_m2"]
+        coherence_area = (arrays["wavelength_m"] * arrays["range_m"]) ** 2 / arrays[
+            "footprint_area_m2"
+        ]
         return out(1.0 + arrays["receiver_area_m2"] / coherence_area)
     raise ValueError(f"detection must be 'coherent' or 'direct', got {detection!r}")
 
@@ -149,16 +161,18 @@ def speckle_decorrelation(shift_m, footprint_radius_m, wavelength_m, wavefront_r
     lam = positive_array("wavelength_m", wavelength_m)
     rc = np.asarray(wavefront_radius_m, dtype=float)
     if np.any(np.isnan(rc)) or np.any(rc == 0.0):
-        raise ValueError("wavefront_radius_m must be nonzero and not NaN (inf for a flat wavefront)")
-    curvature = np.pi * w / (lam * np.abs(rc))   # 0 for an infinite radius
+        raise ValueError(
+            "wavefront_radius_m must be nonzero and not NaN (inf for a flat wavefront)"
+        )
+    curvature = np.pi * w / (lam * np.abs(rc))  # 0 for an infinite radius
     return out(np.exp(-2.0 * s**2 * (1.0 / w**2 + curvature**2)))
 
 
 def _rho(value) -> float:
-    r = real_array("rho_between_shots", value)
-    if r.ndim != 0:
+    arr = real_array("rho_between_shots", value)
+    if arr.ndim != 0:
         raise ValueError("rho_between_shots must be a scalar (one correlation for the sequence)")
-    r = float(r)
+    r = float(arr)
     if not 0.0 <= r <= 1.0:
         raise ValueError(f"rho_between_shots must lie in [0, 1], got {r!r}")
     return r
@@ -188,7 +202,7 @@ def correlated_speckle_field(n_shots, rho_between_shots, cells, rng):
         return w
     a = np.sqrt(rho)
     x = np.sqrt(1.0 - rho) * w
-    x[0] = w[0]                            # start in the stationary distribution
+    x[0] = w[0]  # start in the stationary distribution
     return signal.lfilter([1.0], [1.0, -a], x, axis=0)
 
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def wiener_phase(times_s: list[np.ndarray], linewidth_hz: float, rng: np.random.Generator,
-                 batch: int = 1) -> list[np.ndarray]:
+def wiener_phase(
+    times_s: list[np.ndarray], linewidth_hz: float, rng: np.random.Generator, batch: int = 1
+) -> list[np.ndarray]:
     """Laser phase (rad) at each array of ``times_s``, jointly exact; shape (batch, len(times)).
 
     ``linewidth_hz == 0`` returns zeros and draws nothing.

@@ -32,6 +32,14 @@ class PeriodicTrain:
     amplitude_v: float
     dc_v: float
 
+    def unit(self, t_s: np.ndarray) -> np.ndarray:
+        """The waveform in units of the amplitude at times ``t_s`` (s); each drive defines it."""
+        raise NotImplementedError
+
+    def envelope(self, t_s: np.ndarray) -> np.ndarray:
+        """The amplitude envelope (0..1) at times ``t_s`` (s); each drive defines it."""
+        raise NotImplementedError
+
     def voltage(self, t_s: np.ndarray) -> np.ndarray:
         """Drive voltage at the modulator (V): dc + amplitude x the unit waveform."""
         return self.dc_v + self.amplitude_v * self.unit(t_s)
@@ -62,7 +70,7 @@ class ChirpTrain(PeriodicTrain):
     dc_v: float
 
     @classmethod
-    def from_config(cls, config) -> "ChirpTrain":
+    def from_config(cls, config) -> ChirpTrain:
         wf = config.waveform
         amplitude_v, dc_v = drive_levels(config)
         return cls(
@@ -129,4 +137,3 @@ class ChirpTrain(PeriodicTrain):
         """Normalised drive w(t) sin(phi(t)) in [-1, 1]: also the RF dechirp reference."""
         tc = self.time_in_chirp(t_s)
         return self.envelope(tc) * np.sin(self.phase(tc))
-

@@ -17,10 +17,28 @@ from .chirp import PeriodicTrain, drive_levels
 # Source: Xilinx XAPP052 "Efficient Shift Registers, LFSR Counters, and Long Pseudo-Random
 # Sequence Generators", Table 3.
 _TAPS = {
-    3: (3, 2), 4: (4, 3), 5: (5, 3), 6: (6, 5), 7: (7, 6), 8: (8, 6, 5, 4), 9: (9, 5),
-    10: (10, 7), 11: (11, 9), 12: (12, 6, 4, 1), 13: (13, 4, 3, 1), 14: (14, 5, 3, 1),
-    15: (15, 14), 16: (16, 15, 13, 4), 17: (17, 14), 18: (18, 11), 19: (19, 6, 2, 1),
-    20: (20, 17), 21: (21, 19), 22: (22, 21), 23: (23, 18), 24: (24, 23, 22, 17),
+    3: (3, 2),
+    4: (4, 3),
+    5: (5, 3),
+    6: (6, 5),
+    7: (7, 6),
+    8: (8, 6, 5, 4),
+    9: (9, 5),
+    10: (10, 7),
+    11: (11, 9),
+    12: (12, 6, 4, 1),
+    13: (13, 4, 3, 1),
+    14: (14, 5, 3, 1),
+    15: (15, 14),
+    16: (16, 15, 13, 4),
+    17: (17, 14),
+    18: (18, 11),
+    19: (19, 6, 2, 1),
+    20: (20, 17),
+    21: (21, 19),
+    22: (22, 21),
+    23: (23, 18),
+    24: (24, 23, 22, 17),
 }
 
 
@@ -53,12 +71,17 @@ class PNTrain(PeriodicTrain):
     dc_v: float
 
     @classmethod
-    def from_config(cls, config) -> "PNTrain":
+    def from_config(cls, config) -> PNTrain:
         wf = config.waveform
         amplitude_v, dc_v = drive_levels(config)
-        return cls(period_s=wf.chirp_period_s, rise_s=wf.ramp_duty_cycle * wf.chirp_period_s,
-                   chip_rate_hz=wf.pn_chip_rate_hz, order=wf.pn_order,
-                   amplitude_v=amplitude_v, dc_v=dc_v)
+        return cls(
+            period_s=wf.chirp_period_s,
+            rise_s=wf.ramp_duty_cycle * wf.chirp_period_s,
+            chip_rate_hz=wf.pn_chip_rate_hz,
+            order=wf.pn_order,
+            amplitude_v=amplitude_v,
+            dc_v=dc_v,
+        )
 
     @property
     def bandwidth_hz(self) -> float:
@@ -74,4 +97,3 @@ class PNTrain(PeriodicTrain):
         tc = np.mod(t_s, self.period_s)
         idx = np.floor(tc * self.chip_rate_hz).astype(np.int64) % code.size
         return self.envelope(tc) * code[idx]
-
