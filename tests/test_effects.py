@@ -7,7 +7,7 @@ import pytest
 
 from chirplidar import load_mission, simulate_shot
 from chirplidar.channel.effects import EFFECTS, channel_returns
-from chirplidar.config.models import EFFECT_NAMES
+from chirplidar.config.models_effects import EFFECT_NAMES
 from chirplidar.tiers import simulate_link, simulate_rf
 from conftest import BENCH, CH5, SMALL
 

@@ -16,12 +16,9 @@ from chirplidar.config.loader import ConfigError
 from chirplidar.geometry import synthetic_terrain
 from chirplidar.geometry.frames import geodetic_to_projected, projected_to_geodetic
 from chirplidar.geometry.terrain import MATERIAL_CODES, MATERIAL_NAMES
-from chirplidar.mission import scene as scene_mod
-from chirplidar.mission.scene import (
-    TerrainCacheWarning,
-    load_scene,
-    scene_from_text,
-)
+from chirplidar.mission import scene_terrain
+from chirplidar.mission.scene import load_scene, scene_from_text
+from chirplidar.mission.scene_terrain import TerrainCacheWarning
 from chirplidar.target.materials import MATERIALS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -443,6 +440,9 @@ def test_inconsistent_sections_name_the_key(tmp_path):
         (synthetic_text().replace("center_lat_deg = 69.1", "center_lat_deg = -69.1"),
          r"terrain\.center_lat_deg: -69\.1 deg is outside EPSG:3413"),
         ("name = 'x'\nepsg = 3413\neffects = [\n", r"not valid TOML"),
+        # a centre no projected frame holds (it made the grid's coordinates all equal)
+        (flat_text().replace("-200000.0", "1e30"), r"terrain\.center_x_m: .*less than or "
+         r"equal to 20000000"),
     ]
     for i, (text, pattern) in enumerate(cases):
         p = write(tmp_path, text, f"case{i}.toml")
@@ -506,7 +506,7 @@ def test_corrupt_cache_is_regenerated_with_warning(tmp_path):
 
 def test_cache_dir_default_from_environment(tmp_path, monkeypatch):
     monkeypatch.setenv("CHIRPLIDAR_CACHE", str(tmp_path / "env-cache"))
-    assert scene_mod.default_cache_dir() == tmp_path / "env-cache"
+    assert scene_terrain.default_cache_dir() == tmp_path / "env-cache"
     s = load_scene(write(tmp_path, flat_text()))
     assert s.cache_file.parent == tmp_path / "env-cache"
     assert load_scene(write(tmp_path, flat_text())).cache_hit

@@ -113,7 +113,7 @@ def _scene(path, overrides=None):
 def region_from_scene(path, overrides=None) -> Region:
     """The scene's terrain extent (a box in its EPSG frame), centre and ground height there
     (ConfigError, a ValueError, naming the file on a bad scene)."""
-    from ..mission.scene import tomllib
+    from ..config.loader import tomllib
 
     try:   # a mission file given for a scene: say so in one line
         if "terrain" not in tomllib.loads(Path(path).read_text()):

@@ -114,11 +114,11 @@ import xarray as xr
 from .. import _checks
 from ..config.loader import (
     ConfigError,
-    _known,
-    _unknown_key_message,
     config_with,
+    is_known_key,
     load_mission,
     resolve_key,
+    unknown_key_message,
 )
 from ..mission.runner import quantile_between, quantile_ranks
 
@@ -309,8 +309,8 @@ def parse_vary(spec: str) -> VaryAxis:
     if not key:
         raise ConfigError(f"--vary {spec}: no key before '='")
     mission_key = resolve_key(key)
-    if not _known(mission_key):
-        raise ConfigError(_unknown_key_message(key, "--vary"))
+    if not is_known_key(mission_key):
+        raise ConfigError(unknown_key_message(key, "--vary"))
     if not raw:
         raise ConfigError(f"--vary {spec}: no values after '=' (expected START:STOP:N[:log] "
                           "or V1,V2,...)")

@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..config.models import EFFECT_NAMES
+from ..config.models_effects import EFFECT_NAMES
 from ..doppler import doppler_shift_hz
 from ..target import speckle_phase, speckle_power
 

@@ -6,16 +6,15 @@ Errors name the file and the dotted key path. Thesis names (``chrp.F2``) are acc
 
 from __future__ import annotations
 
-import difflib
 import os
 import sys
-import typing
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from pydantic import BaseModel, ValidationError
+from pydantic import ValidationError
 
 from .aliases import THESIS_TO_KEY, resolve_key
+from .keys import KeyIndex, model_keys
 from .models import MissionConfig
 
 if sys.version_info >= (3, 11):
@@ -28,28 +27,11 @@ class ConfigError(ValueError):
     """A configuration problem; the message names the file and key."""
 
 
-def _section_model(annotation) -> type[BaseModel] | None:
-    """The model of a section field, also when it is optional (``Model | None``)."""
-    candidates = (annotation, *typing.get_args(annotation))
-    for ann in candidates:
-        if isinstance(ann, type) and issubclass(ann, BaseModel):
-            return ann
-    return None
-
-
-def _model_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
-    keys = []
-    for name, field in model.model_fields.items():
-        section = _section_model(field.annotation)
-        if section is not None:
-            keys.extend(_model_keys(section, f"{prefix}{name}."))
-        else:
-            keys.append(f"{prefix}{name}")
-    return keys
-
-
-PROJECT_KEYS: tuple[str, ...] = tuple(_model_keys(MissionConfig))
+PROJECT_KEYS: tuple[str, ...] = model_keys(MissionConfig)
 ALL_KEYS: tuple[str, ...] = PROJECT_KEYS + tuple(THESIS_TO_KEY)
+#: The mission's keys and thesis names; messages quote a key and add its thesis name.
+MISSION_KEYS = KeyIndex(ALL_KEYS, "quoted", aliases={
+    key: thesis for thesis, key in reversed(THESIS_TO_KEY.items())})
 
 
 def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -63,7 +45,8 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def _unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Nested tables from dotted keys: ``{"laser.power_w": 1}`` -> ``{"laser": {"power_w": 1}}``."""
     tree: dict[str, Any] = {}
     for path, v in flat.items():
         node = tree
@@ -74,14 +57,9 @@ def _unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
     return tree
 
 
-def _unknown_key_message(key: str, source: str) -> str:
-    close = difflib.get_close_matches(key, ALL_KEYS, n=5, cutoff=0.6)
-    if not close:
-        # Match on the last component too: 'chrp.F3' -> chrp.F2, 'F2' -> chrp.F2.
-        leaf = key.rsplit(".", 1)[-1].lower()
-        close = [k for k in ALL_KEYS if k.rsplit(".", 1)[-1].lower() == leaf][:5]
-    hint = f" (did you mean: {', '.join(close)}?)" if close else ""
-    return f"{source}: unknown key '{key}'{hint}"
+def unknown_key_message(key: str, source: str) -> str:
+    """``source: unknown key 'KEY' (did you mean: ...?)`` for a mission key."""
+    return f"{source}: {MISSION_KEYS.unknown(key)}"
 
 
 SCENE_PREFIX = "scene."
@@ -93,7 +71,8 @@ def _is_scene_override(key: str) -> bool:
     return key.startswith(SCENE_PREFIX) and key != "scene.file" and len(key) > len(SCENE_PREFIX)
 
 
-def _known(key: str) -> bool:
+def is_known_key(key: str) -> bool:
+    """Whether ``key`` (a project key, not a thesis name) is a mission key or a scene change."""
     return key in PROJECT_KEYS or _is_scene_override(key)
 
 
@@ -109,8 +88,8 @@ def _canonical(flat: Mapping[str, Any], source: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in flat.items():
         proj = resolve_key(key)
-        if not _known(proj):
-            raise ConfigError(_unknown_key_message(key, source))
+        if not is_known_key(proj):
+            raise ConfigError(unknown_key_message(key, source))
         if proj in out:
             raise ConfigError(f"{source}: key '{proj}' given twice (once as '{key}')")
         out[proj] = value
@@ -129,51 +108,11 @@ def parse_set(assignment: str) -> tuple[str, Any]:
     return key, value
 
 
-#: At most this many problems are listed in a validation message (then "and N more").
-MAX_LISTED_PROBLEMS = 6
-
-
-def _format_validation(err: ValidationError, source: str) -> str:
-    """One line: the source, then each problem (missing keys together), ``; ``-separated."""
-    missing, problems = [], []
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"] if p != "__root__")
-        thesis = [t for t, k in THESIS_TO_KEY.items() if k == loc]
-        also = f" ({thesis[0]})" if thesis else ""
-        if e["type"] == "missing":
-            missing.append(f"'{loc}'{also}")
-        elif e["type"] == "extra_forbidden":
-            problems.append(_unknown_key_message(loc, source).removeprefix(f"{source}: "))
-        else:
-            msg = e["msg"].removeprefix("Value error, ")
-            value = e.get("input")
-            if isinstance(value, float) and value != value:
-                msg = "not a number (NaN)" if msg.startswith("Input should be") else msg
-            if not loc or isinstance(value, dict):
-                # a section's own check: its message names the keys; the section's whole
-                # contents would bury it
-                problems.append(msg)
-            else:
-                problems.append(f"'{loc}'{also}: {msg} (got {value!r})")
-    return one_line_message(source, missing, problems)
-
-
-def one_line_message(source: str, missing: list[str], problems: list[str]) -> str:
-    """A validation error in one line: the source, the missing keys together, then the other
-    problems, ``; ``-separated, at most :data:`MAX_LISTED_PROBLEMS` of them."""
-    if missing:
-        problems = [f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}",
-                    *problems]
-    more = len(problems) - MAX_LISTED_PROBLEMS
-    listed = problems[:MAX_LISTED_PROBLEMS] + ([f"and {more} more"] if more > 0 else [])
-    return f"{source}: {'; '.join(listed)}"
-
-
 def build_config(flat: Mapping[str, Any], source: str) -> MissionConfig:
     try:
-        return MissionConfig.model_validate(_unflatten(flat))
+        return MissionConfig.model_validate(unflatten(flat))
     except ValidationError as err:
-        raise ConfigError(_format_validation(err, source)) from None
+        raise ConfigError(MISSION_KEYS.message(err, source)) from None
 
 
 #: Keys that name files, relative to the mission file that sets them.
@@ -247,8 +186,8 @@ def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[
     merged = dict(flat)
     for key, value in items:
         proj = resolve_key(key)
-        if not _known(proj):
-            raise ConfigError(_unknown_key_message(key, "--set"))
+        if not is_known_key(proj):
+            raise ConfigError(unknown_key_message(key, "--set"))
         merged[proj] = value
     return build_config(merged, source)
 

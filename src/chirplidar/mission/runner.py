@@ -160,9 +160,9 @@ class RunResult:
 def _config_toml(config) -> str:
     import tomli_w
 
-    from ..config.loader import _unflatten
+    from ..config.loader import unflatten
 
-    return tomli_w.dumps(_unflatten(config_flat(config)))
+    return tomli_w.dumps(unflatten(config_flat(config)))
 
 
 def _file_sha256(path) -> str:
