@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from chirplidar import load_mission
-from chirplidar.analysis.accuracy import (COLUMNS, HEX_COUNTS, accuracy_study, footprint_echoes,
-                                          markdown_table, pattn_for_snr, write_outputs)
+from chirplidar.analysis.accuracy import (COLUMNS, HEX_COUNTS, accuracy_study, markdown_table,
+                                          pattn_for_snr, slope_footprint_echoes, write_outputs)
 from chirplidar.bench import bench_tiers
 from chirplidar.cli import main
 from chirplidar.config import ConfigError, config_with
@@ -97,13 +97,13 @@ def test_footprint_and_screen_studies_run_small(tmp_path):
 def test_footprint_echoes_are_centred_gaussian_samples():
     cfg = load_mission(CH5)
     for k in (1, 3, 7, 19, 37):
-        off, w = footprint_echoes(cfg, k, 10.0)
+        off, w = slope_footprint_echoes(cfg, k, 10.0)
         assert off.shape == w.shape == (k,)
         assert w.sum() == pytest.approx(1.0) and np.all(w > 0)
         assert abs(np.sum(w * off)) < 1e-15                      # mean delay = the centre's
-    off0, _ = footprint_echoes(cfg, 19, 0.0)
+    off0, _ = slope_footprint_echoes(cfg, 19, 0.0)
     assert np.all(off0 == 0.0)                                   # a flat footprint: one range
-    _, w7 = footprint_echoes(cfg, 7, 10.0)
+    _, w7 = slope_footprint_echoes(cfg, 7, 10.0)
     assert 0.2 < w7[0] < 0.6                                     # the centre keeps a fair share
     assert HEX_COUNTS[:4] == (1, 7, 19, 37)
 

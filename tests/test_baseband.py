@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 from chirplidar import load_mission, simulate_shot
-from chirplidar.analysis.crossval import Case, footprint_echoes, run_case
+from chirplidar.analysis.crossval import Case, run_case, uniform_spread_echoes
 from chirplidar.tiers import baseband, simulate_baseband
 from conftest import CH5
 
@@ -45,7 +45,7 @@ def test_baseband_range_rms_within_ten_percent_of_rf():
          target_snr_db=25),
     Case("speckle", "M = 1", ('effects.enabled=["speckle"]', "effects.speckle.cells=1"),
          target_snr_db=25),
-    Case("footprint", "10 ns", target_snr_db=25, echoes=footprint_echoes(10e-9),
+    Case("footprint", "10 ns", target_snr_db=25, echoes=uniform_spread_echoes(10e-9),
          tiers=("rf", "baseband")),
 ], ids=lambda c: c.family)
 def test_baseband_matches_rf_with_effects(case):
@@ -147,7 +147,7 @@ def test_phase_diversity_baseband_matches_rf():
 @pytest.mark.parametrize("label, overrides, echoes", [
     ("SNR 71 dB", ("atm.Pattn=20",), None),
     ("SNR 11 dB", ("atm.Pattn=85",), None),
-    ("footprint 10 ns", ("atm.Pattn=45",), footprint_echoes(10e-9)),
+    ("footprint 10 ns", ("atm.Pattn=45",), uniform_spread_echoes(10e-9)),
     ("linewidth 100 kHz", ("atm.Pattn=45", "lsr.Lw=1e5", 'effects.enabled=["phase_noise"]'), None),
     ("Doppler + speckle", ("atm.Pattn=45", 'effects.enabled=["doppler", "speckle"]',
                            "effects.doppler.radial_velocity_mps=2", "effects.speckle.cells=1"), None),

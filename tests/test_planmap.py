@@ -35,15 +35,10 @@ from chirplidar.cli import main
 from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
 from chirplidar.geometry.terrain import Terrain
 from chirplidar.mission.results import build_dataset, write_netcdf
-from chirplidar.viz import planmap
+from chirplidar.viz import plan_basemap, plan_layers, planmap
 from chirplidar.viz._mpl import plt
-from chirplidar.viz.planmap import (
-    hillshade,
-    plan_map_figure,
-    plot_plan_map,
-    scale_bar_length_m,
-    true_north_bearing_deg,
-)
+from chirplidar.viz.plan_basemap import hillshade, scale_bar_length_m, true_north_bearing_deg
+from chirplidar.viz.planmap import plan_map_figure, plot_plan_map
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 TO_3413 = Transformer.from_crs(4326, 3413, always_xy=True)
@@ -366,10 +361,10 @@ def test_many_shots_and_long_tracks_are_decimated():
     try:
         ax = fig.axes[0]
         line_x = ax.lines[0].get_xdata()
-        assert line_x.size <= planmap.MAX_TRACK_VERTICES + 4
+        assert line_x.size <= plan_layers.MAX_TRACK_VERTICES + 4
         assert np.isnan(ax.lines[0].get_ydata()).sum() == 1            # the break survives
         drawn = sum(len(c.get_offsets()) for c in ax.collections)
-        assert 0 < drawn <= planmap.MAX_SHOTS_DRAWN
+        assert 0 < drawn <= plan_layers.MAX_SHOTS_DRAWN
         texts = [t.get_text() for t in fig.legends[0].get_texts()]
         assert any(t.startswith("footprints: 1 in 3 of 449,999") for t in texts)
     finally:
@@ -402,7 +397,7 @@ def test_heightfield_terrain_shaded_and_decimated():
     fig = plan_map_figure(terrain=big, epsg=3413)
     try:
         (image,) = fig.axes[0].images
-        assert max(image.get_array().shape) <= planmap.MAX_SHADE_PX
+        assert max(image.get_array().shape) <= plan_basemap.MAX_SHADE_PX
     finally:
         plt.close(fig)
 

@@ -31,21 +31,11 @@ import pytest
 import xarray as xr
 from conftest import FLAT_SNOW, write_scene, write_uav_mission
 
-from chirplidar.analysis.study import (
-    METRICS,
-    StudyPlan,
-    dim_name,
-    format_study,
-    key_units,
-    parse_vary,
-    plan_study,
-    point_metrics,
-    run_study,
-    study_dataset,
-    study_records,
-    toml_literal,
-    write_study,
-)
+from chirplidar.analysis.study import run_study
+from chirplidar.analysis.study_grid import dim_name, key_units, parse_vary, toml_literal
+from chirplidar.analysis.study_metrics import METRICS, point_metrics
+from chirplidar.analysis.study_output import format_study, study_dataset, study_records, write_study
+from chirplidar.analysis.study_plan import StudyPlan, plan_study
 from chirplidar.cli import main
 from chirplidar.config import ConfigError, config_with, load_mission, parse_set
 from chirplidar.mission.results import read_netcdf

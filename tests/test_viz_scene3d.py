@@ -11,7 +11,8 @@ import pytest
 from chirplidar.geometry.synthetic_terrain import sloped_plane
 from chirplidar.mission.results import build_dataset
 from chirplidar.viz import scene3d
-from chirplidar.viz.scene3d import auto_vertical_exaggeration, render_track
+from chirplidar.viz.scene3d import render_track
+from chirplidar.viz.scene3d_geometry import auto_vertical_exaggeration
 
 pytest.importorskip("pyvista")
 mpimg = pytest.importorskip("matplotlib.image")

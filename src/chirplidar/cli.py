@@ -528,7 +528,8 @@ def cmd_plan(args) -> int:
 def cmd_study(args) -> int:
     """``chirplidar study``: the survey mission at every point of a grid of one or two keys
     (:mod:`chirplidar.analysis.study`); a table, JSON, a plot and/or a NetCDF study file."""
-    from .analysis.study import check_output_file, format_study, run_study, study_records
+    from .analysis.study import check_output_file, run_study
+    from .analysis.study_output import format_study, study_records
 
     if not args.vary:
         raise UsageError("--vary KEY=START:STOP:N or KEY=V1,V2,... is required")

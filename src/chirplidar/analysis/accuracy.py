@@ -191,7 +191,7 @@ def pattn_for_snr(config, snr_db: float, *, start_db: float | None = None,
     return float(pattn)
 
 
-def footprint_echoes(config, k: int, slope_deg: float) -> tuple[np.ndarray, np.ndarray]:
+def slope_footprint_echoes(config, k: int, slope_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """(delay offsets in s, power weights) of k sub-rays over the beam's footprint on a plane
     tilted by ``slope_deg`` (see the module docstring). Offsets have weighted mean 0."""
     from ..optics import beam_radius_m
@@ -410,7 +410,7 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
         phases = {k: phase_rng.uniform(0.0, 2 * np.pi, (n_foot, k)) for k in (*ks, k_ref)}
         ref_row = None
         for s in runs:
-            off, w = footprint_echoes(cfg, s.sub_rays, slope_deg)
+            off, w = slope_footprint_echoes(cfg, s.sub_rays, slope_deg)
             row = record(s, cfg, top, pattn, top_point, False, ref_row,
                          echo=(off, w, phases[s.sub_rays]), n_shots=n_foot)
             ref_row = row if s.reference else ref_row

@@ -323,43 +323,50 @@ def _visit(win: dict, point) -> dict:
     return out
 
 
-def crossovers(files, polylines, cell_m: float, epsg: int) -> xr.Dataset:
-    """The crossings of the tracks, refined on the full-rate footprints (module docstring)."""
+def _crossing_row(files, polylines, offset, pa, ka, pb, kb, x, y) -> tuple:
+    """A crossing of polylines ``pa`` (segment ``ka``) and ``pb`` (``kb``) near (x, y), refined
+    on their full-rate footprints: (x, y, earlier time, later time, earlier visit, later visit,
+    earlier polyline, later polyline); ``offset``: each file's epoch offset [s]."""
     from shapely.geometry import LineString, Point
 
+    sides = []
+    for p, k in ((pa, ka), (pb, kb)):
+        pl = polylines[p]
+        _, _, obs = pl.arrays()
+        lo, hi = int(obs[k]), int(obs[min(k + 1, obs.size - 1)])
+        margin = max(2, hi - lo)
+        sides.append((pl, files[pl.file].window(pl.beam, lo - margin, hi + margin + 1,
+                                                _WINDOW_VARS)))
+    point = Point(x, y)
+    (pl1, w1), (pl2, w2) = sides
+    ok1 = np.isfinite(w1["x"]) & np.isfinite(w1["y"])
+    ok2 = np.isfinite(w2["x"]) & np.isfinite(w2["y"])
+    if ok1.sum() >= 2 and ok2.sum() >= 2:
+        fine = LineString(np.column_stack([w1["x"][ok1], w1["y"][ok1]])).intersection(
+            LineString(np.column_stack([w2["x"][ok2], w2["y"][ok2]])))
+        if not fine.is_empty:
+            pts = [g for g in getattr(fine, "geoms", [fine])]
+            cands = [q for g in pts for q in (
+                [g] if g.geom_type == "Point" else [g.interpolate(0.5, normalized=True)])]
+            point = min(cands, key=lambda q: q.distance(Point(x, y)))
+    v1, v2 = _visit(w1, point), _visit(w2, point)
+    t1 = v1["time"] + offset[pl1.file]
+    t2 = v2["time"] + offset[pl2.file]
+    if t2 < t1:
+        (pl1, v1, t1), (pl2, v2, t2) = (pl2, v2, t2), (pl1, v1, t1)
+    return (point.x, point.y, t1, t2, v1, v2, pl1, pl2)
+
+
+def crossovers(files, polylines, cell_m: float, epsg: int) -> xr.Dataset:
+    """The crossings of the tracks, refined on the full-rate footprints (definitions:
+    :mod:`chirplidar.analysis.coverage`)."""
     step = cell_m / TRACK_STEP_PER_CELL
     epochs = [f.epoch for f in files]
     ref = min((e for e in epochs if e is not None), default=None)
     offset = [((e - ref).total_seconds() if (e is not None and ref is not None) else 0.0)
               for e in epochs]
-    rows = []
-    for pa, ka, pb, kb, x, y in _segment_crossings(polylines, step):
-        sides = []
-        for p, k in ((pa, ka), (pb, kb)):
-            pl = polylines[p]
-            _, _, obs = pl.arrays()
-            lo, hi = int(obs[k]), int(obs[min(k + 1, obs.size - 1)])
-            margin = max(2, hi - lo)
-            sides.append((pl, files[pl.file].window(pl.beam, lo - margin, hi + margin + 1,
-                                                    _WINDOW_VARS)))
-        point = Point(x, y)
-        (pl1, w1), (pl2, w2) = sides
-        ok1 = np.isfinite(w1["x"]) & np.isfinite(w1["y"])
-        ok2 = np.isfinite(w2["x"]) & np.isfinite(w2["y"])
-        if ok1.sum() >= 2 and ok2.sum() >= 2:
-            fine = LineString(np.column_stack([w1["x"][ok1], w1["y"][ok1]])).intersection(
-                LineString(np.column_stack([w2["x"][ok2], w2["y"][ok2]])))
-            if not fine.is_empty:
-                pts = [g for g in getattr(fine, "geoms", [fine])]
-                cands = [q for g in pts for q in (
-                    [g] if g.geom_type == "Point" else [g.interpolate(0.5, normalized=True)])]
-                point = min(cands, key=lambda q: q.distance(Point(x, y)))
-        v1, v2 = _visit(w1, point), _visit(w2, point)
-        t1 = v1["time"] + offset[pl1.file]
-        t2 = v2["time"] + offset[pl2.file]
-        if t2 < t1:
-            (pl1, v1, t1), (pl2, v2, t2) = (pl2, v2, t2), (pl1, v1, t1)
-        rows.append((point.x, point.y, t1, t2, v1, v2, pl1, pl2))
+    rows = [_crossing_row(files, polylines, offset, *crossing)
+            for crossing in _segment_crossings(polylines, step)]
     n = len(rows)
 
     def col(fn, dtype=float):

@@ -59,7 +59,7 @@ def pattn_for_snr(overrides, snr_db: float) -> float:
     return 60.0 + float(snr) - snr_db
 
 
-def footprint_echoes(spread_s: float, k: int = 9):
+def uniform_spread_echoes(spread_s: float, k: int = 9):
     """Echoes of a tilted footprint: k sub-returns spread uniformly over ``spread_s`` of round-trip
     delay with Gaussian beam weights (1/e^2 at the ends) and independent carrier phases (a diffuse
     surface: each patch is its own scatterer), drawn from a fixed generator."""
@@ -89,7 +89,7 @@ def default_cases() -> list[Case]:
                       ('effects.enabled=["speckle"]', "effects.speckle.cells=1"), target_snr_db=25))
     for spread in (2e-9, 10e-9):
         cases.append(Case("footprint", f"footprint spread {spread * 1e9:g} ns",
-                          target_snr_db=25, echoes=footprint_echoes(spread),
+                          target_snr_db=25, echoes=uniform_spread_echoes(spread),
                           tiers=("rf", "baseband")))
     return cases
 

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..config.aliases import resolve_key
 from ..config.loader import ConfigError, parse_set
-from .study import parse_vary, toml_literal
+from .study_grid import parse_vary, toml_literal
 
 __all__ = ["Candidate", "PlanResult", "Requirement", "find_plan", "format_plan", "write_plan"]
 

@@ -44,7 +44,7 @@ def result_terrain(ds):
 def parse_bounds(text: str) -> tuple[float, float, float, float]:
     """``"XMIN,YMIN,XMAX,YMAX"`` (projected metres) -> four floats, validated (finite,
     XMIN < XMAX, YMIN < YMAX); ValueError naming ``--bounds`` otherwise."""
-    from ..viz.scene3d import check_bounds_m
+    from ..viz.conventions import check_bounds_m
 
     parts = str(text).split(",")
     if len(parts) != 4:
@@ -115,7 +115,8 @@ def view_result(path, *, var: str = "range_error", png=None, bounds=None,
     footprints to that box and fit the camera to it. camera_azimuth_deg, camera_elevation_deg,
     zoom: see :func:`chirplidar.viz.scene3d.render_track` (None: its defaults).
     """
-    from ..viz.scene3d import check_bounds_m, render_track
+    from ..viz.conventions import check_bounds_m
+    from ..viz.scene3d import render_track
 
     ds = _read_result(path)
     _check_var(ds, var, path)
@@ -194,8 +195,8 @@ def view_plan(path, *, var: str = "range_error", png, bounds=None) -> Path:
     naming --bounds when no footprint lies inside); None: the footprints and the region.
     Returns the PNG path.
     """
+    from ..viz.conventions import check_bounds_m
     from ..viz.planmap import plot_plan_map
-    from ..viz.scene3d import check_bounds_m
 
     ds = _read_result(path)
     _check_var(ds, var, path)

@@ -5,9 +5,13 @@ draw. Submodules:
 
 - :mod:`chirplidar.viz.spectrum`: the dechirped beat spectrum of one shot (thesis Fig. 5.2).
 - :mod:`chirplidar.viz.sensitivity`: sweep results and SNR-versus-power curves (thesis Fig. 5.7).
-- :mod:`chirplidar.viz.planmap`: plan-view maps (coverage grids, tracks, footprints, hillshade).
+- :mod:`chirplidar.viz.planmap`: plan-view maps (coverage grids, tracks, footprints, hillshade),
+  built from :mod:`~chirplidar.viz.plan_basemap`, :mod:`~chirplidar.viz.plan_layers` and
+  :mod:`~chirplidar.viz.plan_layout`.
 - :mod:`chirplidar.viz.study`: mission studies against one or two keys.
-- :mod:`chirplidar.viz.scene3d`: the pyvista 3-D track view.
+- :mod:`chirplidar.viz.scene3d`: the pyvista 3-D track view, built from
+  :mod:`~chirplidar.viz.scene3d_geometry` and :mod:`~chirplidar.viz.scene3d_actors`.
+- :mod:`chirplidar.viz.conventions`: colours, colour ranges, labels and bounds both views share.
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ MIN_SPAN = {"dB": 1.0, "cm": 1.0, "%": 5.0}
 
 
 def _units_label(ds, dim: str) -> str:
-    from ..analysis.study import key_units
+    from ..analysis.study_grid import key_units
 
     coord = ds[dim]
     key = str(coord.attrs.get("study_key", dim))
