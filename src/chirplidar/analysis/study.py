@@ -34,7 +34,7 @@ too, and ``scene.<scene key>``). At most two keys, each once; a key may not also
 
 Every point is the mission with ``--set``, then the point's values, then (``span_s``)
 ``survey.stop_s = survey.start_s + span_s`` of that point. Before the first point runs, every
-point is prepared (:func:`chirplidar.mission.runner.prepare`: configuration, scene file with the
+point is prepared (:func:`chirplidar.mission.preflight.prepare`: configuration, scene file with the
 point's scene keys, survey plan) and its span checked, so a bad value of any point (an unknown
 material, an altitude under the terrain, a span past the mission's end) stops the study before
 any work. Every point runs with the same seed (``seed``, else the mission's): the points differ
@@ -75,9 +75,9 @@ interpolates with) such a shot is -inf. No NaN, no warning. Quantiles are numpy'
 (``np.percentile``, ``method="linear"``, for the 10th and 90th percentiles; ``np.median``, the
 middle value or the mean of the middle two, for the medians), computed exactly: while the
 surface shots' SNR and power fit in the memory budget (one results chunk, as
-:func:`~chirplidar.mission.runner._summary_of_chunks` keeps) they are kept and the order
+:func:`~chirplidar.mission.summary.summary_of_chunks` keeps) they are kept and the order
 statistics taken with ``np.partition``; beyond it they come from
-:func:`chirplidar.mission.runner._order_statistics` (a radix select over four more passes over the
+:func:`chirplidar.mission.summary.order_statistics` (a radix select over four more passes over the
 file, memory bounded by one chunk whatever the run's length). Both give the same bits. Sums are
 accumulated per chunk: the height spread with Chan et al.'s pairwise update of (n, mean, M2), the
 range RMS from the sum of squares. A metric without shots to compute it from is NaN
@@ -120,7 +120,7 @@ from ..config.loader import (
     load_mission,
     resolve_key,
 )
-from ..mission.runner import quantile_between, quantile_ranks
+from ..mission.summary import quantile_between, quantile_ranks
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -429,8 +429,8 @@ def plan_study(mission_path, vary: Sequence, *, overrides=(), span_s=None, cell_
     also in ``overrides``, a varied ``seed`` (every point uses the same seed), ``survey.tier``
     varied with ``tier`` given, ``survey.stop_s`` varied with ``span_s``, a bad ``span_s`` or
     ``cell_m``, and any point whose mission, scene or plan does not load
-    (:func:`chirplidar.mission.runner.prepare` of every point)."""
-    from ..mission.runner import TIERS, prepare
+    (:func:`chirplidar.mission.preflight.prepare` of every point)."""
+    from ..mission.preflight import TIERS, prepare
     from ..mission.survey import check_crosses_scene, plan_survey
 
     mission_path = Path(mission_path)
@@ -608,7 +608,7 @@ def _power_dbm(values) -> np.ndarray:
 
 
 def _lerp(a: float, b: float, g: float, *, median: bool = False) -> float:
-    """:func:`~chirplidar.mission.runner.quantile_between` of the order statistics a <= b, or
+    """:func:`~chirplidar.mission.summary.quantile_between` of the order statistics a <= b, or
     with ``median`` the mean of the middle two as ``np.median`` takes it; -inf (zero signal)
     when a is -inf."""
     if a == -math.inf:
@@ -715,7 +715,7 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
             snr_at = dict(zip(snr_ranks, np.partition(snr, snr_ranks)[snr_ranks].tolist()))
             pow_at = dict(zip(pow_ranks, np.partition(pw, pow_ranks)[pow_ranks].tolist()))
         else:
-            from ..mission.runner import _order_statistics
+            from ..mission.summary import order_statistics
 
             def blocks():
                 for block in _read_blocks(path, names=("detected", "snr_db",
@@ -725,7 +725,7 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
                     yield (np.where(np.isfinite(snr_b), snr_b, _NEG_SENTINEL),
                            np.where(np.isfinite(pw_b), pw_b, _NEG_SENTINEL))
 
-            s_vals, p_vals = _order_statistics(blocks, [snr_ranks, pow_ranks])
+            s_vals, p_vals = order_statistics(blocks, [snr_ranks, pow_ranks])
             back = lambda v: -math.inf if v == _NEG_SENTINEL else v
             snr_at = {r: back(v) for r, v in zip(snr_ranks, s_vals)}
             pow_at = {r: back(v) for r, v in zip(pow_ranks, p_vals)}
@@ -786,10 +786,11 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
     (:func:`check_output_file`). Everything is checked (:func:`plan_study`) before the first
     point runs.
     """
-    from ..mission.runner import _check_parallel_args, run_mission
+    from ..mission.executors import check_parallel_args
+    from ..mission.runner import run_mission
 
     try:
-        _check_parallel_args(workers, scheduler)
+        check_parallel_args(workers, scheduler)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     if out is not None:
@@ -862,7 +863,7 @@ def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = N
                   date_created: str | None = None) -> xr.Dataset:
     """The study dataset of ``plan`` from metric arrays shaped like the grid."""
     from .. import __version__
-    from ..mission.runner import _default_date_created
+    from ..mission.manifest import default_date_created
 
     dims = tuple(a.dim for a in plan.axes)
     coords = {}
@@ -884,7 +885,7 @@ def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = N
         if name == "fraction_covered":
             attrs["cell_size_m"] = float(plan.cell_m)
         data_vars[name] = (dims, np.asarray(metrics[name]), attrs)
-    date_created = date_created or _default_date_created()
+    date_created = date_created or default_date_created()
     source = f"chirplidar {__version__}"
     span = ("the whole mission" if plan.span_s is None
             else f"survey.start_s .. survey.start_s + {plan.span_s:g} s")
@@ -917,7 +918,7 @@ def write_study(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
     """Write a study dataset to NetCDF atomically (temp file beside it, fsync, rename); an
     existing ``path`` raises FileExistsError unless ``overwrite``. NaN is the fill value of
     the float metrics (no value); -inf stays -inf (zero signal)."""
-    from ..mission.results import NETCDF_LOCK, _atomic_write
+    from ..mission.results import NETCDF_LOCK, write_atomic
 
     for name, var in ds.variables.items():
         if "units" not in var.attrs or "long_name" not in var.attrs:
@@ -931,7 +932,7 @@ def write_study(ds: xr.Dataset, path, *, overwrite: bool = False) -> Path:
         with NETCDF_LOCK:
             ds.to_netcdf(tmp, engine="netcdf4", format="NETCDF4", encoding=encoding)
 
-    return _atomic_write(Path(path), write, overwrite=overwrite)
+    return write_atomic(Path(path), write, overwrite=overwrite)
 
 
 # ---------------------------------------------------------------------------------- reporting
