@@ -159,14 +159,15 @@ def check_outputs(mission: Path, out: str, argv) -> None:
         missing = [k for k in MEASURED if report.get(k, 0) is None]
         assert not missing or report["flags"], f"{argv}: {missing} null without a flag"
         return
-    from chirplidar.mission import runner
+    from chirplidar.mission import pipeline
     from chirplidar.mission.survey import chunk_geometry
 
-    config, scene, plan = runner.prepare(mission)
+    config, scene, plan = preflight.prepare(mission)
     t = plan.chunk_times(0)[:4]
     seq = np.random.SeedSequence(1)
     geom = chunk_geometry(plan, scene, config, t, seq, config.survey.subrays_per_beam)
-    per_shot = runner._per_shot(config, geom, runner._measure(config, scene, geom, seq))
+    per_shot = pipeline.per_shot_variables(config, geom,
+                                           pipeline.measure_chunk(config, scene, geom, seq))
     detected = per_shot["detected"] == 1
     for name, values in per_shot.items():
         values = np.asarray(values, dtype=float)

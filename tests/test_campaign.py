@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from chirplidar.config.loader import ConfigError
-from chirplidar.mission import runner, survey
+from chirplidar.mission import preflight, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
 
@@ -28,7 +28,7 @@ MONTH = ["survey.stop_utc=2026-11-04T00:00:00Z"]   # 30 days of the 91
 @pytest.fixture(scope="module")
 def month(tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
-    return runner.prepare(CAMPAIGN, overrides=MONTH, cache_dir=cache)
+    return preflight.prepare(CAMPAIGN, overrides=MONTH, cache_dir=cache)
 
 
 def _hits(plan, scene, cfg, t):
@@ -82,15 +82,15 @@ def test_one_pass_campaign_runs_and_counts(tmp_path):
 ])
 def test_bad_campaign_input(overrides, match, tmp_path):
     with pytest.raises(ConfigError, match=match):
-        runner.prepare(CAMPAIGN, overrides=overrides, cache_dir=tmp_path / "cache")
+        preflight.prepare(CAMPAIGN, overrides=overrides, cache_dir=tmp_path / "cache")
 
 
 def test_campaign_window_is_for_satellites(tmp_path):
     with pytest.raises(ConfigError, match="a uav campaign is several flights"):
-        runner.prepare(ROOT / "missions" / "greenland_uav.toml",
-                       overrides=["survey.start_utc=2026-10-05T00:00:00Z",
-                                  "survey.stop_utc=2026-10-06T00:00:00Z"],
-                       cache_dir=tmp_path / "cache")
+        preflight.prepare(ROOT / "missions" / "greenland_uav.toml",
+                          overrides=["survey.start_utc=2026-10-05T00:00:00Z",
+                                     "survey.stop_utc=2026-10-06T00:00:00Z"],
+                          cache_dir=tmp_path / "cache")
 
 
 def test_shot_finds_a_campaign_shot_in_its_own_pass(month, tmp_path):

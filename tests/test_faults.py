@@ -27,8 +27,10 @@ import pytest
 import xarray as xr
 
 from chirplidar.cli import main
-from chirplidar.mission import results, runner
-from chirplidar.mission.runner import CHUNK_DELAY_ENV, MANIFEST_NAME, chunk_dir_for
+from chirplidar.mission import runner
+from chirplidar.mission.executors import CHUNK_DELAY_ENV
+from chirplidar.mission.manifest import MANIFEST_NAME, chunk_dir_for
+from chirplidar.mission.results import merge
 
 import test_run_scale
 from test_run_scale import DATE_EPOCH, _interrupted, _reap
@@ -118,14 +120,14 @@ def _fail_manifest_write(monkeypatch, make_error):
 
 def _fail_merge_append(monkeypatch, make_error, index=3, chunk_shots=500):
     """The results file's append of chunk ``index`` fails (h5py's errors carry no file name)."""
-    real = results._copy_hdf5_variable
+    real = merge._copy_hdf5_variable
 
     def failing(src, dst, axis, start, last):
         if start == index * chunk_shots:
             raise make_error(None)
         return real(src, dst, axis, start, last)
 
-    monkeypatch.setattr(results, "_copy_hdf5_variable", failing)
+    monkeypatch.setattr(merge, "_copy_hdf5_variable", failing)
 
 
 _STAGES = {   # stage -> (inject, the file named, sealed chunks kept)
@@ -185,7 +187,7 @@ def test_a_library_error_with_free_space_is_not_called_disk_full(small, env, tmp
 _FILL_DRIVER = r"""
 import os, sys
 from pathlib import Path
-from chirplidar.mission import runner
+from chirplidar.mission import manifest, runner
 from chirplidar.cli import main
 
 stage, mount, argv = sys.argv[1], Path(sys.argv[2]), sys.argv[3:]
@@ -202,7 +204,7 @@ def fill():
     finally:
         os.close(fd)
 
-real_chunk, real_manifest = runner.run_chunk, runner._write_manifest
+real_chunk, real_manifest = runner.run_chunk, manifest.write_manifest
 
 def run_chunk(job, index, progress=None):
     if stage == "chunk" and index == 2:
@@ -217,7 +219,7 @@ def write_manifest(chunk_dir, manifest):
         fill()
     return real_manifest(chunk_dir, manifest)
 
-runner.run_chunk, runner._write_manifest = run_chunk, write_manifest
+runner.run_chunk, manifest.write_manifest = run_chunk, write_manifest
 if stage == "lock":
     fill()
 sys.exit(main(argv))

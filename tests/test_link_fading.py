@@ -93,7 +93,7 @@ def test_survey_link_tier_fades_one_record_shots(tmp_path):
     """measure_link with K = 1 and a random carrier phase: SNR / SNR(optimum phase) = sin^2 psi
     shot by shot (flat snow, no speckle: the optimum-phase SNR is deterministic)."""
     from chirplidar.mission.measure import measure_link
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry, chunk_seeds
 
     mission = _flat_survey(tmp_path)

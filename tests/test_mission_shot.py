@@ -13,7 +13,7 @@ from conftest import ROOT, TWO_BEAMS, write_scene, write_uav_mission
 from chirplidar.api import simulate_mission_shot
 from chirplidar.cli import main
 from chirplidar.config import load_mission
-from chirplidar.mission import measure, runner, survey
+from chirplidar.mission import measure, preflight, runner, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.shot import simulate_mission_shot as raw_mission_shot
 from chirplidar.units import db_to_ratio
@@ -49,7 +49,7 @@ def test_greenland_shot_is_at_flight_height_not_the_bench_spool(capsys):
     assert rec["t_s"] == 0.0 and rec["beam"] == 0 and rec["surface"] == "blue_ice"
     # The mission flies 120 m above the ground (platform.uav.altitude_m, above_ground) with a
     # nadir beam: the range is the platform's height over the scene's ground under the footprint.
-    cfg, scene, _ = runner.prepare(GREENLAND)
+    cfg, scene, _ = preflight.prepare(GREENLAND)
     assert cfg.platform.uav.altitude_m == 120.0
     ground = float(scene.ground_height_m(np.array([rec["x_m"]]), np.array([rec["y_m"]]))[0])
     assert rec["platform_height_m"] - ground == pytest.approx(120.0, abs=0.05)
@@ -76,7 +76,7 @@ def test_greenland_text_output_names_the_survey_shot(capsys):
 def test_rf_shot_is_the_runs_rf_shot():
     """The shot path and ``measure_rf`` run the same function for the shot's configuration and
     echoes (``measure.rf_shot_setup``) on the same stream: identical results."""
-    cfg, scene, plan = runner.prepare(GREENLAND, overrides=RF_SHORT)
+    cfg, scene, plan = preflight.prepare(GREENLAND, overrides=RF_SHORT)
     seq = survey.chunk_seeds(cfg.seed, plan.n_chunks)[0]
     geom = survey.chunk_geometry(plan, scene, cfg, plan.chunk_times(0), seq,
                                  cfg.survey.subrays_per_beam)
@@ -106,7 +106,7 @@ def test_measure_rf_outputs_unchanged_by_the_refactor():
         "received_power": [1.804609465823287e-12, 1.8580745572661566e-12,
                            1.8580718983544638e-12, 1.8580747534289733e-12],
     }
-    cfg, scene, plan = runner.prepare(GREENLAND, overrides=RF_SHORT)
+    cfg, scene, plan = preflight.prepare(GREENLAND, overrides=RF_SHORT)
     seq = survey.chunk_seeds(cfg.seed, plan.n_chunks)[0]
     geom = survey.chunk_geometry(plan, scene, cfg, plan.chunk_times(0), seq,
                                  cfg.survey.subrays_per_beam)
@@ -140,7 +140,7 @@ def test_altitude_sweep_is_lambertian_on_flat_snow(tmp_path, capsys):
     # back) x the atmosphere's round trip (1: extinction 0) x channel.extra_attenuation_db (0 dB
     # in flight); A = pi D^2 / 4 (channel.telescope_diameter_m); cos(theta) = 1 (nadir, flat);
     # the footprint's sub-ray weights sum to 1 and all hit; no effects (no speckle).
-    cfg, scene, _ = runner.prepare(mission)
+    cfg, scene, _ = preflight.prepare(mission)
     ch = cfg.channel
     assert ch.extra_attenuation_db == 0.0
     rho = scene.material_reflectivity(cfg.laser.wavelength_m)[

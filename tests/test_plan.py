@@ -105,7 +105,7 @@ def test_vary_altitude_picks_the_quickest_and_aircraft_waypoints_follow_turns(tm
                  str(tmp_path / "air")])
     capsys.readouterr()
     from chirplidar.geometry import frames
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
 
     _, scene, plan = prepare(tmp_path / "air" / "mission.toml")
     wp = read_qgc_plan(tmp_path / "air" / "mission.plan")

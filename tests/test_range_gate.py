@@ -12,7 +12,7 @@ import pytest
 from chirplidar.config.loader import ConfigError, config_with, load_mission
 from chirplidar.geometry import frames
 from chirplidar.geometry import pointing
-from chirplidar.mission import measure, runner, survey
+from chirplidar.mission import measure, preflight, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
 from chirplidar.tiers.baseband import simulate_baseband
@@ -90,9 +90,9 @@ def test_icesat2_beam_pattern_from_the_output(tmp_path):
     assert np.abs(s[0::2] - s[1::2]) == pytest.approx([2500.0] * 3, rel=0.02)
     # Energy: the strong (left) beam of each pair against its weak partner, speckle left out
     # (its exponential draws would need ~10^5 shots for 2 %), same material only.
-    cfg, scene, plan = runner.prepare(ICESAT, overrides=["survey.start_s=-0.2",
-                                                         "survey.stop_s=0.2"],
-                                      cache_dir=tmp_path / "cache")
+    cfg, scene, plan = preflight.prepare(ICESAT, overrides=["survey.start_s=-0.2",
+                                                            "survey.stop_s=0.2"],
+                                         cache_dir=tmp_path / "cache")
     seq = survey.chunk_seeds(cfg.seed, plan.n_chunks)[0]
     geom = survey.chunk_geometry(plan, scene, cfg, plan.chunk_times(0), seq, 7)
     psig = measure.received_power(cfg, scene, geom, seq,
@@ -122,10 +122,10 @@ def test_impossible_window_is_a_config_error():
     w_max = (20e6 - cfg.processing.highpass_hz) * SPEED_OF_LIGHT_M_S / (
         2 * cfg.channel.group_index * bud.rate_hz_per_s)
     with pytest.raises(ConfigError, match=f"survey.range_window_m.*at most {w_max:.0f} m"):
-        runner.prepare(ICESAT, overrides=["processing.peak_search_max_hz=20e6"])
+        preflight.prepare(ICESAT, overrides=["processing.peak_search_max_hz=20e6"])
     # 20 km lags the far edge by 133 us, beyond the chirp's ramp.
     with pytest.raises(ConfigError, match="survey.range_window_m.*longer than the chirp"):
-        runner.prepare(ICESAT, overrides=["survey.range_window_m=20e3"])
+        preflight.prepare(ICESAT, overrides=["survey.range_window_m=20e3"])
 
 
 def test_zero_doppler_steering_nulls_every_across_track_beam():

@@ -239,10 +239,10 @@ def _stored_chunks(path, name):
 
 def _spy_copies(monkeypatch):
     """Record (variable, chunk start, copied raw?) of every variable the merge copies."""
-    from chirplidar.mission import results
+    from chirplidar.mission.results import merge
 
     calls = []
-    copy = results._copy_hdf5_variable
+    copy = merge._copy_hdf5_variable
 
     def spy(src, dst, axis, start, last):
         import h5py
@@ -251,7 +251,7 @@ def _spy_copies(monkeypatch):
         calls.append((h5py.h5i.get_name(src[0]).decode().lstrip("/"), start, out is None))
         return out
 
-    monkeypatch.setattr(results, "_copy_hdf5_variable", spy)
+    monkeypatch.setattr(merge, "_copy_hdf5_variable", spy)
     return calls
 
 

@@ -35,17 +35,14 @@ from chirplidar.mission.results import (
     read_netcdf,
     write_netcdf,
 )
-from chirplidar.mission.runner import (
-    CHUNK_DELAY_ENV,
-    MANIFEST_NAME,
-    _config_toml,
-    _per_shot,
-    chunk_dir_for,
-    prepare,
-    results_dataset,
-    run_mission,
-    summarise,
-)
+from chirplidar.mission.executors import CHUNK_DELAY_ENV
+from chirplidar.mission.manifest import MANIFEST_NAME, chunk_dir_for
+from chirplidar.mission.pipeline import config_toml as _config_toml
+from chirplidar.mission.pipeline import per_shot_variables as _per_shot
+from chirplidar.mission.pipeline import results_dataset
+from chirplidar.mission.preflight import prepare
+from chirplidar.mission.runner import run_mission
+from chirplidar.mission.summary import summarise
 from chirplidar.mission.survey import chunk_geometry, chunk_seeds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,7 +124,8 @@ def test_chunked_run_equals_in_memory_path(small, tmp_path):
 def test_summary_streamed_beyond_its_memory_budget(small, tmp_path):
     """Past its memory budget the summary is streamed over the chunk files (radix-select order
     statistics): counts, median and 95th percentile still exactly numpy's."""
-    from chirplidar.mission.runner import _order_statistics, _summary_of_chunks
+    from chirplidar.mission.summary import order_statistics as _order_statistics
+    from chirplidar.mission.summary import summary_of_chunks as _summary_of_chunks
 
     serial = small.serial
     ds = serial.dataset
@@ -255,20 +253,22 @@ def test_scheduler_address_with_threaded_workers(small, tmp_path):
 def test_worker_error_surfaces_like_serial(small, tmp_path):
     """A chunk that fails in a Dask worker raises the same ConfigError (same message) in the
     caller as it does in a serial run: here a job whose scene hash does not match the file."""
-    from chirplidar.mission import runner
+    from chirplidar.mission import pipeline
+    from chirplidar.mission.executors import DaskExecutor
+    from chirplidar.mission.manifest import sha256_text
 
     mission, cache = small.mission, small.cache
     config, _, plan = prepare(mission, cache_dir=cache)
-    job = runner.ChunkJob(
+    job = pipeline.ChunkJob(
         mission_path=str(mission.resolve()), mission_label=str(mission), overrides=(),
         tier=None, seed=None, cache_dir=str(cache), chunk_dir=str(tmp_path / "c"),
-        date_created=DATE, configuration_sha256=runner._sha256(_config_toml(config)),
+        date_created=DATE, configuration_sha256=sha256_text(_config_toml(config)),
         scene_sha256="0" * 64)
     with pytest.raises(ConfigError) as serial_err:
-        runner.run_chunk(job, 0)
+        pipeline.run_chunk(job, 0)
     assert "changed on disk" in str(serial_err.value)
     with pytest.raises(ConfigError) as worker_err:
-        runner._run_dask(job, [0, 1], plan, 2, None, None, {})
+        DaskExecutor(workers=2).run(pipeline.run_chunk, job, [0, 1], plan)
     assert str(worker_err.value) == str(serial_err.value)
     assert pickle.loads(pickle.dumps(job)) == job   # plain data, as shipped to workers
 
@@ -385,8 +385,8 @@ def test_run_mission_parallel_arguments_checked(small):
 
 _MALLOC_PROBE = """
 import resource, numpy as np
-from chirplidar.mission.runner import _keep_freed_memory
-_keep_freed_memory()                 # first thing: no large block has been freed yet
+from chirplidar.mission.executors import keep_freed_memory
+keep_freed_memory()                  # first thing: no large block has been freed yet
 
 def faults_of_one_round():
     f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -401,7 +401,7 @@ print(min(faults_of_one_round() for _ in range(3)))
 
 @pytest.mark.skipif(sys.platform != "linux", reason="glibc malloc settings")
 def test_freed_chunk_memory_is_reused_whenever_the_setting_is_made():
-    """``_keep_freed_memory`` called before any large block was freed: 1 MiB arrays freed
+    """``keep_freed_memory`` called before any large block was freed: 1 MiB arrays freed
     and allocated again reuse malloc's heap. Reference: 16 MiB mapped afresh is 4096 page
     faults of 4 KiB (what glibc did with its mmap threshold left at 128 KiB); reuse needs
     none, so fewer than a tenth of that."""

@@ -123,7 +123,7 @@ def test_same_seed_same_output(flat_run):
 def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     """Footprint range spread = tan(slope) x footprint diameter; the rf beat broadens with it."""
     from chirplidar.mission.measure import sub_ray_power_fractions
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry
     from chirplidar.tiers.budget import make_budget
     from chirplidar.units import SPEED_OF_LIGHT_M_S
@@ -287,7 +287,7 @@ def test_missing_scene_file_named(tmp_path):
 
 def test_shipped_missions_plan(tmp_path):
     """Both shipped missions load, plan and cross their scenes (no shots simulated)."""
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
 
     for name, beams in (("greenland_uav", 1), ("icesat_like", 6)):
         config, scene, plan = prepare(ROOT / "missions" / f"{name}.toml")
@@ -300,7 +300,7 @@ def test_turbulence_sees_the_scene_profile():
     from chirplidar.atmosphere import fried_parameter
     from chirplidar.config.loader import config_with
     from chirplidar.mission.measure import _equivalent_cn2
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry
 
     config, scene, plan = prepare(ROOT / "missions" / "greenland_uav.toml",
@@ -359,7 +359,7 @@ def test_lawnmower_tracks_polygon_and_height_sigma(tmp_path):
 def test_scene_keys_in_the_mission(tmp_path):
     """``scene.<key>`` in a mission (or --set) changes that key of the scene file for this run;
     a misspelt one is an error naming it."""
-    from chirplidar.mission.runner import prepare
+    from chirplidar.mission.preflight import prepare
 
     scene = write_scene(tmp_path, "flat", 'flat height_m = 100.0\nmaterial = "snow"')
     mission = write_uav_mission(tmp_path, scene, altitude=300.0, mode="above_ground",

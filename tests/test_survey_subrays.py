@@ -29,7 +29,7 @@ from scipy.special import erf
 from chirplidar import load_mission
 from chirplidar.config.loader import config_with
 from chirplidar.mission import measure
-from chirplidar.mission.runner import prepare
+from chirplidar.mission.preflight import prepare
 from chirplidar.mission.survey import chunk_geometry, chunk_seeds
 from chirplidar.tiers.baseband import simulate_baseband
 from chirplidar.tiers.budget import make_budget

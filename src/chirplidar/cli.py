@@ -275,7 +275,8 @@ def _check_cluster_args(args) -> None:
 
 
 def cmd_run(args) -> int:
-    from .mission.runner import format_summary, run_mission
+    from .mission.runner import run_mission
+    from .mission.summary import format_summary
 
     _check_cluster_args(args)
     if args.dry_run:
@@ -1127,7 +1128,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         hint = ""
         if args.command == "run" and not getattr(args, "dry_run", False):
-            from .mission.runner import chunk_dir_for, default_output
+            from .mission.manifest import chunk_dir_for
+            from .mission.runner import default_output
 
             chunks = chunk_dir_for(Path(args.out) if args.out else default_output(args.mission))
             if chunks.is_dir():

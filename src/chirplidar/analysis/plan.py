@@ -120,9 +120,9 @@ class PlanResult:
 def _lawnmower_section(config):
     """(kind, [platform.uav] or [platform.aircraft]) of a lawnmower survey; ConfigError for a
     satellite or a waypoint path."""
-    from ..mission.survey import _flight_section
+    from ..mission.survey import flight_section
 
-    sec = _flight_section(config) if config.platform is not None else None
+    sec = flight_section(config) if config.platform is not None else None
     if sec is None:
         raise ConfigError("plan is for UAV and aircraft missions (platform.kind = 'uav' or "
                           "'aircraft'); for satellites see `chirplidar passes`")
@@ -135,7 +135,8 @@ def _lawnmower_section(config):
 
 def _evaluate(mission, base, over: dict, req: Requirement, endurance, workdir, workers,
               progress) -> Candidate:
-    from ..mission.runner import prepare, run_mission
+    from ..mission.preflight import prepare
+    from ..mission.runner import run_mission
     from .coverage import CoverageError, compute_coverage
 
     sets = list(base) + [f"{k}={toml_literal(v)}" for k, v in over.items()]
@@ -354,7 +355,7 @@ def write_plan(result: PlanResult, out_dir, *, overwrite: bool = False) -> dict:
     """Write mission.toml, plan.geojson, mission.plan and plan.json into ``out_dir``; returns
     the paths. FileExistsError (before writing anything) if any exists without ``overwrite``."""
     from ..mission.flightplan import write_geojson, write_qgc_plan
-    from ..mission.runner import prepare
+    from ..mission.preflight import prepare
 
     out_dir = Path(out_dir)
     names = {"mission": "mission.toml", "geojson": "plan.geojson", "qgc": "mission.plan",

@@ -82,10 +82,11 @@ def run_study(mission_path, vary: Sequence, *, overrides=(), span_s: float | Non
     (:func:`check_output_file`). Everything is checked
     (:func:`~chirplidar.analysis.study_plan.plan_study`) before the first point runs.
     """
-    from ..mission.runner import _check_parallel_args, run_mission
+    from ..mission.executors import check_parallel_args
+    from ..mission.runner import run_mission
 
     try:
-        _check_parallel_args(workers, scheduler)
+        check_parallel_args(workers, scheduler)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     out = _checked_out(out, overwrite)

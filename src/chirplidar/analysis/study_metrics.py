@@ -29,9 +29,9 @@ interpolates with) such a shot is -inf. No NaN, no warning. Quantiles are numpy'
 (``np.percentile``, ``method="linear"``, for the 10th and 90th percentiles; ``np.median``, the
 middle value or the mean of the middle two, for the medians), computed exactly: while the
 surface shots' SNR and power fit in the memory budget (one results chunk, as
-:func:`~chirplidar.mission.runner._summary_of_chunks` keeps) they are kept and the order
+:func:`~chirplidar.mission.summary.summary_of_chunks` keeps) they are kept and the order
 statistics taken with ``np.partition``; beyond it they come from
-:func:`chirplidar.mission.runner._order_statistics` (a radix select over four more passes over the
+:func:`chirplidar.mission.summary.order_statistics` (a radix select over four more passes over the
 file, memory bounded by one chunk whatever the run's length). Both give the same bits. Sums are
 accumulated per chunk: the height spread with Chan et al.'s pairwise update of (n, mean, M2), the
 range RMS from the sum of squares. A metric without shots to compute it from is NaN
@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config.loader import ConfigError
-from ..mission.runner import quantile_between, quantile_ranks
+from ..mission.summary import quantile_between, quantile_ranks
 
 #: The metrics of a point, in table order: name -> (units, long_name).
 METRICS: dict[str, tuple[str, str]] = {
@@ -142,7 +142,7 @@ def _power_dbm(values) -> np.ndarray:
 
 
 def _lerp(a: float, b: float, g: float, *, median: bool = False) -> float:
-    """:func:`~chirplidar.mission.runner.quantile_between` of the order statistics a <= b, or
+    """:func:`~chirplidar.mission.summary.quantile_between` of the order statistics a <= b, or
     with ``median`` the mean of the middle two as ``np.median`` takes it; -inf (zero signal)
     when a is -inf."""
     if a == -math.inf:
@@ -249,7 +249,7 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
             snr_at = dict(zip(snr_ranks, np.partition(snr, snr_ranks)[snr_ranks].tolist()))
             pow_at = dict(zip(pow_ranks, np.partition(pw, pow_ranks)[pow_ranks].tolist()))
         else:
-            from ..mission.runner import _order_statistics
+            from ..mission.summary import order_statistics
 
             def blocks():
                 for block in _read_blocks(path, names=("detected", "snr_db",
@@ -259,7 +259,7 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
                     yield (np.where(np.isfinite(snr_b), snr_b, _NEG_SENTINEL),
                            np.where(np.isfinite(pw_b), pw_b, _NEG_SENTINEL))
 
-            s_vals, p_vals = _order_statistics(blocks, [snr_ranks, pow_ranks])
+            s_vals, p_vals = order_statistics(blocks, [snr_ranks, pow_ranks])
             back = lambda v: -math.inf if v == _NEG_SENTINEL else v
             snr_at = {r: back(v) for r, v in zip(snr_ranks, s_vals)}
             pow_at = {r: back(v) for r, v in zip(pow_ranks, p_vals)}

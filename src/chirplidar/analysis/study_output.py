@@ -29,7 +29,7 @@ def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = N
                   date_created: str | None = None) -> xr.Dataset:
     """The study dataset of ``plan`` from metric arrays shaped like the grid."""
     from .. import __version__
-    from ..mission.runner import _default_date_created
+    from ..mission.manifest import default_date_created
 
     dims = tuple(a.dim for a in plan.axes)
     coords = {}
@@ -51,7 +51,7 @@ def study_dataset(plan: StudyPlan, metrics: dict, *, elapsed_s: float | None = N
         if name == "fraction_covered":
             attrs["cell_size_m"] = float(plan.cell_m)
         data_vars[name] = (dims, np.asarray(metrics[name]), attrs)
-    date_created = date_created or _default_date_created()
+    date_created = date_created or default_date_created()
     source = f"chirplidar {__version__}"
     span = ("the whole mission" if plan.span_s is None
             else f"survey.start_s .. survey.start_s + {plan.span_s:g} s")

@@ -3,7 +3,7 @@ prepared and checked before the first one runs.
 
 Every point is the mission with ``--set``, then the point's values, then (``span_s``)
 ``survey.stop_s = survey.start_s + span_s`` of that point. Before the first point runs, every
-point is prepared (:func:`chirplidar.mission.runner.prepare`: configuration, scene file with the
+point is prepared (:func:`chirplidar.mission.preflight.prepare`: configuration, scene file with the
 point's scene keys, survey plan) and its span checked, so a bad value of any point (an unknown
 material, an altitude under the terrain, a span past the mission's end) stops the study before
 any work. Every point runs with the same seed (``seed``, else the mission's): the points differ
@@ -76,8 +76,8 @@ def plan_study(mission_path, vary: Sequence, *, overrides=(), span_s=None, cell_
     also in ``overrides``, a varied ``seed`` (every point uses the same seed), ``survey.tier``
     varied with ``tier`` given, ``survey.stop_s`` varied with ``span_s``, a bad ``span_s`` or
     ``cell_m``, and any point whose mission, scene or plan does not load
-    (:func:`chirplidar.mission.runner.prepare` of every point)."""
-    from ..mission.runner import TIERS
+    (:func:`chirplidar.mission.preflight.prepare` of every point)."""
+    from ..mission.preflight import TIERS
 
     mission_path = Path(mission_path)
     axes, seen = _checked_axes(vary)
@@ -148,7 +148,7 @@ def _plan_point(mission_path: Path, axes, index, overrides: tuple, *, span_s, ce
                 seed: int, cache_dir) -> StudyPoint:
     """The point ``index`` of the grid, prepared (configuration, scene, plan) and checked: its
     span within the mission, a shot in it, ``cell_m`` within its region."""
-    from ..mission.runner import prepare
+    from ..mission.preflight import prepare
     from ..mission.survey import check_crosses_scene, plan_survey
 
     values = {a.key: a.values[i] for a, i in zip(axes, index)}

@@ -1,6 +1,9 @@
 """Survey missions: scenes (``scene``), planning and geometry (``survey``), per-shot returns
-through the tiers (``measure``), the runner (``runner``) and CF-1.8 trajectory NetCDF results
-(``results``). The runner and scene loader are imported on first use (they pull in trimesh)."""
+through the tiers (``measure``), the run -- checks before it (``preflight``), one chunk
+(``pipeline``), executors (``executors``), chunk directory and resume (``manifest``), summary
+(``summary``), faults (``faults``), wired by ``runner`` -- and CF-1.8 trajectory NetCDF results
+(the ``results`` package). The runner and scene loader are imported on first use (they pull in
+trimesh)."""
 
 from .results import (
     CONVENTIONS,
@@ -18,7 +21,6 @@ from .results import (
     read_netcdf,
     write_netcdf,
 )
-
 
 
 def __getattr__(name):  # lazy: `import chirplidar.mission` stays light

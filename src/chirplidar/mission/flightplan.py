@@ -184,37 +184,11 @@ def write_qgc_plan(path, waypoints_lonlatalt, home_lonlatalt, *, cruise_speed_mp
     here. The home altitude only affects QGC's display and terrain checks, not the flown path,
     which is why absolute (AMSL) altitudes are refused.
     """
-    wps = _lonlat_rows("waypoints_lonlatalt", waypoints_lonlatalt, 3, 1)
-    home_arr = real_array("home_lonlatalt", home_lonlatalt)
-    if home_arr.shape != (3,):
-        raise ValueError(f"home_lonlatalt must have shape (3,), got {home_arr.shape}")
-    home = _lonlat_rows("home_lonlatalt", home_arr[None, :], 3, 1)[0]
-    cruise = positive("cruise_speed_mps", cruise_speed_mps)
-    if vehicle_type not in _MAV_TYPE:
-        raise ValueError(f"vehicle_type must be one of {sorted(_MAV_TYPE)}, got {vehicle_type!r}")
-    if altitude_reference != "relative":
-        raise ValueError("altitude_reference must be 'relative': absolute altitudes would need "
-                         f"AMSL heights (no geoid model here), got {altitude_reference!r}")
-    rel = wps[:, 2] - home[2]  # height above the launch point [m]
-    if takeoff_altitude_m is None:
-        if rel[0] <= 0.0:
-            raise ValueError("waypoints_lonlatalt: the first waypoint is not above home; "
-                             "give takeoff_altitude_m")
-        takeoff = float(rel[0])
-    else:
-        takeoff = positive("takeoff_altitude_m", takeoff_altitude_m)
-
+    wps, home, cruise, rel, takeoff = _checked_plan_inputs(
+        waypoints_lonlatalt, home_lonlatalt, cruise_speed_mps, vehicle_type,
+        altitude_reference, takeoff_altitude_m)
     h_lon, h_lat = float(home[0]), float(home[1])
-    items = [_simple_item(1, MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                          [_TAKEOFF_PITCH_DEG, 0, 0, None, h_lat, h_lon, takeoff], takeoff)]
-    for (lon, lat, _), alt in zip(wps, rel):
-        items.append(_simple_item(len(items) + 1, MAV_CMD_NAV_WAYPOINT,
-                                  MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                                  [0, 0, 0, None, float(lat), float(lon), float(alt)],
-                                  float(alt)))
-    # RTL has no coordinate: QGC saves such commands in MAV_FRAME_MISSION with zero params.
-    items.append(_simple_item(len(items) + 1, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_FRAME_MISSION,
-                              [0, 0, 0, 0, 0, 0, 0]))
+    items = _mission_items(wps, rel, h_lon, h_lat, takeoff)
     plan = {
         "fileType": "Plan",
         "version": 1,
@@ -237,6 +211,47 @@ def write_qgc_plan(path, waypoints_lonlatalt, home_lonlatalt, *, cruise_speed_mp
         "rallyPoints": {"version": 2, "points": []},
     }
     _write_json_atomic(path, plan)
+
+
+def _checked_plan_inputs(waypoints_lonlatalt, home_lonlatalt, cruise_speed_mps, vehicle_type,
+                         altitude_reference, takeoff_altitude_m) -> tuple:
+    """The arguments of :func:`write_qgc_plan` checked: (waypoints, home, cruise speed,
+    waypoint heights above home [m], take-off height above home [m]); ValueError otherwise."""
+    wps = _lonlat_rows("waypoints_lonlatalt", waypoints_lonlatalt, 3, 1)
+    home_arr = real_array("home_lonlatalt", home_lonlatalt)
+    if home_arr.shape != (3,):
+        raise ValueError(f"home_lonlatalt must have shape (3,), got {home_arr.shape}")
+    home = _lonlat_rows("home_lonlatalt", home_arr[None, :], 3, 1)[0]
+    cruise = positive("cruise_speed_mps", cruise_speed_mps)
+    if vehicle_type not in _MAV_TYPE:
+        raise ValueError(f"vehicle_type must be one of {sorted(_MAV_TYPE)}, got {vehicle_type!r}")
+    if altitude_reference != "relative":
+        raise ValueError("altitude_reference must be 'relative': absolute altitudes would need "
+                         f"AMSL heights (no geoid model here), got {altitude_reference!r}")
+    rel = wps[:, 2] - home[2]  # height above the launch point [m]
+    if takeoff_altitude_m is None:
+        if rel[0] <= 0.0:
+            raise ValueError("waypoints_lonlatalt: the first waypoint is not above home; "
+                             "give takeoff_altitude_m")
+        takeoff = float(rel[0])
+    else:
+        takeoff = positive("takeoff_altitude_m", takeoff_altitude_m)
+    return wps, home, cruise, rel, takeoff
+
+
+def _mission_items(wps, rel, h_lon, h_lat, takeoff: float) -> list[dict]:
+    """The ``.plan`` mission items: take-off at home, one waypoint each, return to launch."""
+    items = [_simple_item(1, MAV_CMD_NAV_TAKEOFF, MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                          [_TAKEOFF_PITCH_DEG, 0, 0, None, h_lat, h_lon, takeoff], takeoff)]
+    for (lon, lat, _), alt in zip(wps, rel):
+        items.append(_simple_item(len(items) + 1, MAV_CMD_NAV_WAYPOINT,
+                                  MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                                  [0, 0, 0, None, float(lat), float(lon), float(alt)],
+                                  float(alt)))
+    # RTL has no coordinate: QGC saves such commands in MAV_FRAME_MISSION with zero params.
+    items.append(_simple_item(len(items) + 1, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_FRAME_MISSION,
+                              [0, 0, 0, 0, 0, 0, 0]))
+    return items
 
 
 def read_qgc_plan(path) -> np.ndarray:

@@ -1,4 +1,10 @@
-"""Before a run flies: what a planner should be warned about, and how big the run is.
+"""Before a run flies: the mission loaded and checked, what a planner should be warned about,
+and how big the run is.
+
+:func:`prepare` loads and checks everything a run needs before any shot: the resolved
+configuration (the mission file with its ``--set`` overrides), its scene (whose ``effects`` list
+becomes the run's ``effects.enabled``: a scene enables effects, their parameters come from the
+instrument's ``[effects.*]`` sections) and the survey plan.
 
 :func:`planner_warnings` looks at a checked configuration and its scene for values that are
 legal but implausible (a power typed in the wrong unit, a platform that cannot point, a flight
@@ -16,10 +22,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from .survey import _flight_section, chunk_geometry, survey_polygon_xy
+from ..config.loader import ConfigError, config_with, load_mission, scene_overrides
+from . import measure
+from .results import BYTES_PER_BEAM_SHOT
+from .survey import (flight_section, check_crosses_scene, chunk_geometry, plan_survey,
+                     survey_polygon_xy)
+
+#: The tiers a survey runs through.
+TIERS = ("link", "baseband", "rf")
 
 #: A CW chirped lidar's laser above this is suspicious: the thesis's sources are a few mW
 #: (8.58 mW, Table 4.4) and a fibre amplifier gives a few W; more is probably mW typed as W.
@@ -40,6 +54,60 @@ LARGE_RUN_GB = 20.0
 #: The timed pilot: a first shot cheaper than this is followed by this many shots.
 PILOT_CHEAP_S = 0.5
 PILOT_SHOTS = 2048
+
+
+def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None):
+    """Load and check everything a run needs, before any shot: (config, scene, plan)."""
+    from .scene import load_scene
+
+    mission_path = Path(mission_path)
+    if mission_path.is_dir():
+        raise ConfigError(f"{mission_path}: is a directory, not a mission file")
+    if not mission_path.is_file():
+        raise ConfigError(f"{mission_path}: mission file does not exist")
+    config = load_mission(mission_path, overrides)
+    src = str(mission_path)
+    if config.scene is None:
+        raise ConfigError(f"{src}: a survey run needs a [scene] section with file = "
+                          "\"../scenes/NAME.toml\"")
+    extra = {}
+    if tier is not None:
+        if tier not in TIERS:
+            raise ConfigError(f"--tier {tier}: choose one of {', '.join(TIERS)}")
+        extra["survey.tier"] = tier
+    if seed is not None:
+        extra["seed"] = int(seed)
+    if extra:
+        config = config_with(config, extra)
+    scene_path = (mission_path.parent / config.scene.file).resolve()
+    if not scene_path.is_file():
+        raise ConfigError(f"{src}: scene.file: {config.scene.file} does not exist "
+                          f"(looked for {scene_path})")
+    changes = scene_overrides(config)
+    try:
+        scene = load_scene(scene_path, cache_dir=cache_dir, overrides=changes)
+    except ConfigError as exc:
+        if not changes:
+            raise
+        raise ConfigError(f"{exc} (with the mission's scene keys "
+                          f"{', '.join('scene.' + k for k in changes)})") from None
+    try:
+        config = config_with(config, {"effects.enabled": list(scene.effects)})
+    except ConfigError as exc:
+        why = str(exc).removeprefix("override: ")
+        raise ConfigError(f"{src} with scene {scene_path.name} (effects = "
+                          f"{list(scene.effects)}): {why}") from None
+    if config.survey is not None and config.survey.tier == "baseband":
+        from ..tiers.baseband import check_supported
+
+        try:
+            check_supported(config)
+        except ValueError as exc:
+            raise ConfigError(f"{src}: survey.tier = 'baseband': {exc}") from None
+    plan = plan_survey(config, scene, src)
+    measure.check_range_window(config, src)
+    check_crosses_scene(plan, scene, config, src)
+    return config, scene, plan
 
 
 class PlannerWarning(UserWarning):
@@ -73,7 +141,7 @@ def planner_warnings(config, scene, plan) -> list[str]:
 
 def _flight(config, plan) -> list[str]:
     """A flight longer than the platform's endurance; a UAV faster or higher than any."""
-    sec = _flight_section(config)
+    sec = flight_section(config)
     if sec is None:
         return []
     out = []
@@ -96,7 +164,7 @@ def _line_spacing(config, scene) -> list[str]:
     polygon = survey_polygon_xy(config, scene)
     if polygon is None:
         return []
-    sec = _flight_section(config)
+    sec = flight_section(config)
     heading = np.radians(sec.heading_deg) if sec.heading_deg is not None else None
     if heading is None:
         return []
@@ -111,7 +179,7 @@ def _line_spacing(config, scene) -> list[str]:
 
 def _clearance(config, scene, plan) -> list[str]:
     """The path's lowest height above the terrain, for platforms flown at an absolute height."""
-    sec = _flight_section(config)
+    sec = flight_section(config)
     if sec is None or getattr(sec, "altitude_mode", "absolute") != "absolute":
         return []
     duration = getattr(plan.path, "duration_s", None)
@@ -178,8 +246,6 @@ def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEs
     whole, a larger one on ``PILOT_SHOTS / 4`` and ``PILOT_SHOTS`` shots, whose difference
     gives the cost per shot. The pilot has its own seed: the run's outputs do not depend on it.
     """
-    from .results import BYTES_PER_BEAM_SHOT
-
     t_first = plan.chunk_times(0)
     seq = np.random.SeedSequence(0)
 

@@ -54,7 +54,8 @@ def bench_scale(mission=None, overrides=(), *, workers: int = 2, repeats: int = 
 
     from ..bench import default_mission_path
     from .results import read_netcdf
-    from .runner import prepare, run_mission
+    from .preflight import prepare
+    from .runner import run_mission
 
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
@@ -129,7 +130,8 @@ def bench_campaign(mission=None, overrides=(), *, workers: int = 2, progress=Non
     shots_per_s."""
     from ..bench import default_mission_path
     from ..geometry import earth_orientation as eo
-    from .runner import prepare, run_mission
+    from .preflight import prepare
+    from .runner import run_mission
 
     path = Path(mission) if mission is not None else default_mission_path(CAMPAIGN_NAME)
     config, _, plan = prepare(path, overrides=list(overrides))

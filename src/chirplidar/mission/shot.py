@@ -113,7 +113,7 @@ def prepare_mission(mission, *, overrides=(), seed=None, cache_dir=None) -> Prep
     :class:`Prepared`."""
     if isinstance(mission, Prepared):
         return mission
-    from .runner import prepare
+    from .preflight import prepare
 
     config, scene, plan = prepare(mission, overrides=overrides, seed=seed, cache_dir=cache_dir)
     return Prepared(config, scene, plan, str(mission))

@@ -221,7 +221,7 @@ def _path(config, scene, source: str):
         raise ConfigError(f"{source}: {key}: {exc}") from None
 
 
-def _flight_section(config):
+def flight_section(config):
     """``[platform.uav]`` or ``[platform.aircraft]``, or None for a satellite."""
     pf = config.platform
     return pf.uav if pf.kind == "uav" else pf.aircraft if pf.kind == "aircraft" else None
@@ -230,7 +230,7 @@ def _flight_section(config):
 def survey_polygon_xy(config, scene) -> np.ndarray | None:
     """(k, 2) projected x, y [m] of the mission's survey polygon (UAV or aircraft
     ``survey_polygon_m``), or None when the path is given by waypoints or an orbit."""
-    sec = _flight_section(config)
+    sec = flight_section(config)
     if sec is None or sec.survey_polygon_m is None:
         return None
     return _xy(sec.survey_polygon_m, sec.coordinates, scene)
