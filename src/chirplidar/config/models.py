@@ -343,9 +343,8 @@ class Heterodyne(_Model):
         "IF demodulation that knows the LO phase")
 
 
-# Heterodyne IF band-pass half-width as a multiple of the chirp's top frequency (its band must fit
-# below Nyquist; the tiers filter with it).
-IF_HALF_WIDTH_FACTOR = 1.25
+# The heterodyne IF band (the tiers filter with it) must fit below Nyquist.
+from ..tiers.budget import IF_HALF_WIDTH_FACTOR  # noqa: E402
 
 EFFECT_NAMES = ("phase_noise", "speckle", "doppler", "coupling", "turbulence")
 
