@@ -105,3 +105,16 @@ def write_flat_uav_mission(tmp: Path, name: str, *, altitude_m: float, beams: st
     scene = write_scene(tmp, name, terrain, effects=effects, stem=f"{name}_scene")
     return write_uav_mission(tmp, scene, name, altitude=altitude_m, beams=beams, prf=prf,
                              stop=stop, subrays=subrays, extends=extends)
+
+
+def reference_target(config, **overrides):
+    """``config`` aimed at the survey's ideal reference target (rho = 1 at normal incidence, a
+    beam fully intercepted, no transmission losses, no effects): the link tier's table nodes
+    (``tiers.link_survey``)."""
+    from chirplidar.config.loader import config_with
+
+    return config_with(config, {
+        "channel.free_space": True, "channel.target_radius_m": 1e9,
+        "channel.target_reflectivity": 1.0, "channel.atmospheric_transmission": 1.0,
+        "channel.optical_transmission": 1.0, "channel.extra_attenuation_db": 0.0,
+        "effects.enabled": [], **overrides})

@@ -112,9 +112,9 @@ def test_pattn_for_snr_places_the_link_snr():
     cfg = load_mission(CH5)
     p = pattn_for_snr(cfg, 16.0)
     assert 70 < p < 90
-    from chirplidar.tiers import simulate_link
+    from chirplidar.channel import simulate_lab
 
-    snr = simulate_link(config_with(cfg, {"atm.Pattn": p}), np.random.default_rng(0))["SNR"][0]
+    snr = simulate_lab(config_with(cfg, {"atm.Pattn": p}), "link", np.random.default_rng(0))["SNR"][0]
     assert snr == pytest.approx(16.0, abs=1e-2)
 
 

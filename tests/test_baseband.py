@@ -6,7 +6,8 @@ from scipy import stats
 
 from chirplidar import load_mission, simulate_shot
 from chirplidar.analysis.crossval import Case, run_case, uniform_spread_echoes
-from chirplidar.tiers import baseband, simulate_baseband
+from chirplidar.channel import simulate_lab
+from chirplidar.tiers import baseband
 from conftest import CH5
 
 
@@ -71,8 +72,8 @@ def test_coherent_averaging_gains_the_number_of_chirps():
     # noise record of 1/K the variance instead of K.
     one = load_mission(CH5, ["atm.Pattn=85"])
     eight = load_mission(CH5, ["atm.Pattn=85", "sys.avg=8"])
-    s1 = simulate_baseband(one, np.random.default_rng(1), batch=200)["SNR"]
-    s8 = simulate_baseband(eight, np.random.default_rng(2), batch=200)["SNR"]
+    s1 = simulate_lab(one, "baseband", np.random.default_rng(1), batch=200)["SNR"]
+    s8 = simulate_lab(eight, "baseband", np.random.default_rng(2), batch=200)["SNR"]
     gain = 10 * np.log10(np.mean(10 ** (s8 / 10)) / np.mean(10 ** (s1 / 10)))
     assert abs(gain - 10 * np.log10(8)) < 0.5, gain
 
@@ -87,9 +88,9 @@ def test_direct_power_average_agrees_in_distribution_with_explicit(monkeypatch):
     ov = ["chrp.rdcyc=1.0", "chrp.adcyc=1.0", "sys.avg=16", 'processing.averaging="power"',
           'processing.peak_method="parabolic"', "atm.Pattn=88", "processing.peak_search_max_hz=1e8"]
     cfg = load_mission(CH5, ov)
-    direct = simulate_baseband(cfg, np.random.default_rng(21), batch=800)
+    direct = simulate_lab(cfg, "baseband", np.random.default_rng(21), batch=800)
     monkeypatch.setattr(baseband, "DIRECT_POWER_AVERAGE", False)
-    explicit = simulate_baseband(cfg, np.random.default_rng(22), batch=800)
+    explicit = simulate_lab(cfg, "baseband", np.random.default_rng(22), batch=800)
     for key in ("Navg", "Crx", "SNR", "f_beat_hz"):
         a, b = direct[key], explicit[key]
         se = np.sqrt((a.var() + b.var()) / a.size)
@@ -114,10 +115,10 @@ def test_direct_power_average_noise_bins_follow_the_gamma_law():
 
 
 def test_baseband_rejects_what_it_does_not_model():
-    with pytest.raises(ValueError, match="self-chirped coherent receivers"):
-        simulate_baseband(load_mission(CH5, ["sys.rsel=PIN"]), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="the baseband tier models the receivers homodyne, phase_diversity"):
+        simulate_lab(load_mission(CH5, ["sys.rsel=PIN"]), "baseband", np.random.default_rng(0))
     with pytest.raises(ValueError, match="pn_code"):
-        simulate_baseband(load_mission(CH5, ["sys.MxMode=PN"]), np.random.default_rng(0))
+        simulate_lab(load_mission(CH5, ["sys.MxMode=PN"]), "baseband", np.random.default_rng(0))
 
 
 def test_baseband_beat_above_its_band_is_flagged():
@@ -129,8 +130,8 @@ def test_baseband_beat_above_its_band_is_flagged():
 
 def test_baseband_same_seed_same_output():
     cfg = load_mission(CH5, ["atm.Pattn=80", "lsr.Lw=2e4", 'effects.enabled=["phase_noise"]'])
-    a = simulate_baseband(cfg, np.random.default_rng(9), batch=5)
-    b = simulate_baseband(cfg, np.random.default_rng(9), batch=5)
+    a = simulate_lab(cfg, "baseband", np.random.default_rng(9), batch=5)
+    b = simulate_lab(cfg, "baseband", np.random.default_rng(9), batch=5)
     for key in ("SNR", "d_rx", "Crx"):
         np.testing.assert_array_equal(a[key], b[key])
 
@@ -139,7 +140,7 @@ def test_phase_diversity_baseband_matches_rf():
     # Both hybrid arms: the summed-spectra SNR and arm 1's own SNR (thesis Fig. 5.13).
     cfg = load_mission(CH5, ["sys.CxMode=phase_diversity", "atm.Pattn=70"])
     rf = simulate_shot(cfg, seed=1)
-    bb = simulate_baseband(cfg, np.random.default_rng(1), batch=20)
+    bb = simulate_lab(cfg, "baseband", np.random.default_rng(1), batch=20)
     assert abs(np.mean(bb["SNR"]) - rf["SNR"]) < 0.5
     assert abs(np.mean(bb["arm1_SNR"]) - rf["arm1_SNR"]) < 0.5
 
@@ -168,7 +169,7 @@ def test_single_precision_costs_no_accuracy(label, overrides, echoes):
     for prec in ("single", "double"):
         cfg = load_mission(CH5, [*overrides, f"simulation.baseband_precision={prec}"])
         kw = {} if echoes is None else {"echoes": echoes}
-        out[prec] = simulate_baseband(cfg, np.random.default_rng(21), batch=16, **kw)
+        out[prec] = simulate_lab(cfg, "baseband", np.random.default_rng(21), batch=16, **kw)
     s, d = out["single"], out["double"]
     bin_hz = 1.0 / cfg.simulation.duration_s
     for key in ("SNR", "Crx", "Navg"):

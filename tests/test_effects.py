@@ -8,7 +8,7 @@ import pytest
 from chirplidar import load_mission, simulate_shot
 from chirplidar.channel.effects import EFFECTS, channel_returns
 from chirplidar.config.models_effects import EFFECT_NAMES
-from chirplidar.tiers import simulate_link, simulate_rf
+from chirplidar.channel import simulate_lab
 from conftest import BENCH, CH5, SMALL
 
 WAVELENGTH_M = 1.31e-6  # thesis Table 4.4 lsr.Lo
@@ -83,11 +83,11 @@ def test_speckle_fading_of_the_homodyne_beat(cells):
     # The small 16 us record keeps 400 rf shots cheap; the beat is far above the noise.
     cfg = load_mission(BENCH, SMALL + ["atm.Pattn=30", "mzm.Vdc=2.0", _enable("speckle"),
                                        f"effects.speckle.cells={cells}"])
-    link = simulate_link(cfg, np.random.default_rng(3), batch=4000)
+    link = simulate_lab(cfg, "link", np.random.default_rng(3), batch=4000)
     p = 10 ** (link["Crx"] / 10)
     expected = np.sqrt(1.5 * (1 + 1 / cells) - 1)
     assert abs(p.std() / p.mean() - expected) < 0.08
-    rf = simulate_rf(cfg, np.random.default_rng(3), batch=400)
+    rf = simulate_lab(cfg, "rf", np.random.default_rng(3), batch=400)
     p_rf = 10 ** (rf["Crx"] / 10)
     # Standard error of a 400-shot mean at contrast <= 1.41: 7 % (0.3 dB); of the contrast ~0.1.
     assert abs(10 * np.log10(p_rf.mean() / p.mean())) < 1.0
@@ -188,11 +188,11 @@ def test_turbulence_frozen_flow_fading():
     cn2 = _cn2_for(3.0)
     still = _turbulent(cn2, "frozen_flow", ["effects.turbulence.transverse_speed_mps=0",
                                             "effects.turbulence.shot_interval_s=1e-4"])
-    r = simulate_link(still, np.random.default_rng(2), batch=6)
+    r = simulate_lab(still, "link", np.random.default_rng(2), batch=6)
     assert np.ptp(r["Psig"]) < 1e-9  # a screen that does not move: every shot sees the same phase
     moving = _turbulent(cn2, "frozen_flow", ["effects.turbulence.transverse_speed_mps=100",
                                              "effects.turbulence.shot_interval_s=1e-2"])
-    r = simulate_link(moving, np.random.default_rng(2), batch=120)
+    r = simulate_lab(moving, "link", np.random.default_rng(2), batch=120)
     p = 10 ** (r["Psig"] / 10)
     mean = 10 ** (simulate_shot(_turbulent(cn2), tier="link")["Psig"] / 10)
     assert np.std(p) > 0.05 * np.mean(p)            # it fades
@@ -211,7 +211,7 @@ def test_squaring_recovery_removes_the_doppler_range_error():
     assert abs(abs(plain["f_beat_hz"] - still["f_beat_hz"]) - 2 * 3 / WAVELENGTH_M) < bin_hz
     assert abs(squared["f_beat_hz"] - still["f_beat_hz"]) < bin_hz
     assert "squaring_recovery" in squared["flags"]
-    with pytest.raises(ValueError, match="rf tier"):
+    with pytest.raises(ValueError, match="use --tier rf"):
         simulate_shot(_cfg(*base, 'processing.doppler_recovery="squaring"',
                            "processing.doppler_max_hz=10e6"), tier="link")
 

@@ -61,7 +61,7 @@ from chirplidar.mission.results import (
     SCHEMA_BY_NAME,
     read_netcdf,
 )
-from chirplidar.tiers.budget import make_budget
+from chirplidar.channel.lab import lab_budget
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -118,7 +118,7 @@ def _dst_at_lag(lag_s, extra=()):
 def _period_m():
     """c T / (2 n): the range of one chirp period of the Chapter 5 bench."""
     cfg = load_mission(CH5)
-    return SPEED_OF_LIGHT_M_S * make_budget(cfg).train.period_s / (2 * cfg.channel.group_index)
+    return SPEED_OF_LIGHT_M_S * lab_budget(cfg).train.period_s / (2 * cfg.channel.group_index)
 
 
 WAVELENGTH_M = 1.31e-6   # thesis Table 4.4 lsr.Lo

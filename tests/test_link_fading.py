@@ -21,10 +21,9 @@ from scipy.special import erf
 
 from chirplidar import load_mission
 from chirplidar.config.loader import config_with
-from chirplidar.mission.measure import _node_config
-from chirplidar.tiers.baseband import simulate_baseband
-from chirplidar.tiers.link import carrier_fading_factor, simulate_link
-from conftest import FIELD, write_flat_uav_mission
+from chirplidar.channel import simulate_lab
+from chirplidar.tiers.link import carrier_fading_factor
+from conftest import FIELD, reference_target, write_flat_uav_mission
 
 # FIELD (conftest): missions/thesis_field_instrument.toml, carrier_phase = "random"
 
@@ -33,8 +32,13 @@ def _field(*overrides):
     return load_mission(FIELD, ["channel.distance_m=120", *overrides])
 
 
+def _fading(cfg, rng, n):
+    """The link tier's fading factors for the configuration's own carrier-phase setting."""
+    return carrier_fading_factor(cfg, cfg.channel.carrier_phase, rng, n)
+
+
 def test_single_record_fading_is_the_arcsine_law():
-    f = carrier_fading_factor(_field("processing.averages=1"), np.random.default_rng(1), 40000)
+    f = _fading(_field("processing.averages=1"), np.random.default_rng(1), 40000)
     assert abs(f.mean() - 1.0) < 0.015                       # SE 0.0035
     # P(F < 0.1) = (2/pi) arcsin(sqrt(0.05)) = 0.1436 (SE 0.0018)
     assert abs(np.mean(f < 0.1) - 2 / np.pi * np.arcsin(np.sqrt(0.05))) < 0.01
@@ -42,11 +46,11 @@ def test_single_record_fading_is_the_arcsine_law():
 
 def test_power_average_narrows_and_coherent_average_keeps_the_fading():
     k = 94
-    f = carrier_fading_factor(_field(f"processing.averages={k}"), np.random.default_rng(2), 20000)
+    f = _fading(_field(f"processing.averages={k}"), np.random.default_rng(2), 20000)
     assert abs(f.mean() - 1.0) < 0.005
     assert f.std() == pytest.approx(np.sqrt(1 / (2 * k)), rel=0.03)
     coh = _field("processing.averages=16", "processing.averaging=coherent")
-    f = carrier_fading_factor(coh, np.random.default_rng(3), 40000)
+    f = _fading(coh, np.random.default_rng(3), 40000)
     assert abs(f.mean() - 1.0) < 0.025                       # SE 0.007 (variance ~ 2)
     assert abs(np.mean(f < 0.1) - erf(np.sqrt(0.05))) < 0.015  # SE 0.002, + K = 16 offset 0.002
 
@@ -56,10 +60,10 @@ def test_no_fading_without_a_random_phase_or_with_phase_diversity():
     state = rng.bit_generator.state
     for over in (["channel.carrier_phase=optimal"], ["channel.carrier_phase=propagation"],
                  ["sys.rsel=PIN", "mzm.Vdc=1.0"]):
-        assert np.all(carrier_fading_factor(_field(*over), rng, 10) == 1.0)
+        assert np.all(_fading(_field(*over), rng, 10) == 1.0)
     assert rng.bit_generator.state == state                  # no draws
     pd = _field("sys.CxMode=phase_diversity", "processing.averages=1")
-    np.testing.assert_allclose(carrier_fading_factor(pd, rng, 1000), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(_fading(pd, rng, 1000), 1.0, rtol=1e-12)
 
 
 def test_link_fading_matches_baseband_detection_at_threshold():
@@ -67,15 +71,14 @@ def test_link_fading_matches_baseband_detection_at_threshold():
     # tier draws the carrier phase per record; the link tier's mean SNR times its fading factor
     # must detect (SNR >= 10 dB) the same fraction: P(2 sin^2 psi >= 10^-0.3) =
     # 1 - (2/pi) arcsin(sqrt(10^-0.3 / 2)) = 0.666. Without the fading the link detects 100 %.
-    base = config_with(_node_config(_field("processing.averages=1"), []),
-                       {"channel.distance_m": 120.0})
-    snr0 = simulate_link(base, np.random.default_rng(0))["SNR"][0]
+    base = reference_target(_field("processing.averages=1"), **{"channel.distance_m": 120.0})
+    snr0 = simulate_lab(base, "link", np.random.default_rng(0))["SNR"][0]
     cfg = config_with(base, {"channel.extra_attenuation_db": float(snr0 - 13.0)})
-    mean_snr = simulate_link(cfg, np.random.default_rng(0))["SNR"][0]
+    mean_snr = simulate_lab(cfg, "link", np.random.default_rng(0))["SNR"][0]
     assert mean_snr == pytest.approx(13.0, abs=0.01)   # the signal's own shot noise: 1e-4 dB
     n = 600
-    bb = simulate_baseband(cfg, np.random.default_rng(5), batch=n)["SNR"]
-    link = mean_snr + 10 * np.log10(carrier_fading_factor(cfg, np.random.default_rng(6), n))
+    bb = simulate_lab(cfg, "baseband", np.random.default_rng(5), batch=n)["SNR"]
+    link = mean_snr + 10 * np.log10(_fading(cfg, np.random.default_rng(6), n))
     expected = 1 - 2 / np.pi * np.arcsin(np.sqrt(10 ** -0.3 / 2))
     # SE of a 600-shot fraction: 0.019; the baseband's noise adds ~0.3 to the linear SNR (~+0.01)
     assert abs(np.mean(bb >= 10.0) - expected) < 0.06

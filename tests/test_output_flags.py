@@ -33,7 +33,7 @@ from chirplidar.cli import main
 from chirplidar.config import load_mission
 from chirplidar.mission.results import DETECTED_FLAG_MEANINGS, DETECTED_FLAG_VALUES, read_netcdf
 from chirplidar.mission.runner import run_mission
-from chirplidar.tiers.budget import make_budget
+from chirplidar.channel.lab import lab_budget
 from chirplidar.transmitter import mzm_field
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 
@@ -121,7 +121,7 @@ def test_beat_above_nyquist_is_flagged_and_not_read(tier):
     # 106 us period (the next chirp overlaps by 16 us) predicts kappa x 90 us = 450 MHz.
     fs = ["sims.Fs=800e6"]
     cfg = load_mission(CH5, fs + [f"atm.dst={_dst_at_lag(90e-6)}"])
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     nyquist = cfg.simulation.sample_rate_hz / 2
     assert bud.f_beat_hz > nyquist and bud.lag_s > bud.train.period_s - bud.train.rise_s
     r = _shot(fs + [f"atm.dst={_dst_at_lag(90e-6)}"], tier)
@@ -135,7 +135,7 @@ def test_beat_above_nyquist_is_flagged_and_not_read(tier):
 def test_beat_above_the_baseband_band_is_flagged_and_not_read():
     # 13.5 km: kappa x 25.3 us = 126 MHz, above the baseband record's band (F1 + F0 = 100 MHz).
     cfg = load_mission(CH5, ["atm.dst=13500"])
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     assert bud.f_beat_hz > bud.train.f_start_hz
     r = _shot(["atm.dst=13500"], "baseband")
     assert "beat_above_nyquist" in r["flags"]
@@ -160,7 +160,7 @@ def _saturation_psig_dbm(cfg):
     """Received power [dBm] at which the differential optical power peak reaches
     balanced.saturation_power_w (module docstring): P_sig = (P_sat <a^2> / (2 T_c a_pk^2))^2 / P_lo,
     a_pk from the MZM field sampled over one chirp."""
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     train = bud.train
     t = np.linspace(0.0, train.period_s, 400_001)
     a_pk = float(np.max(np.abs(mzm_field(cfg.modulator.bias_v + train.voltage(t), cfg.modulator.v_pi_v))))
@@ -255,7 +255,7 @@ def test_satellite_without_overlap_writes_fill_snr_not_a_sentinel(satellite_with
     # 600 km: tau ~ 4.0 ms; tau_ref = 3.95 ms puts every return ~50 us behind the reference,
     # between the 37.7 us ramp and the 100 us period minus the ramp: no chirp overlap.
     ds, summary, lag = _sat_run(satellite_without_window, tmp_path, 3.95e-3)
-    rise = make_budget(load_mission(satellite_without_window)).train.rise_s
+    rise = lab_budget(load_mission(satellite_without_window)).train.rise_s
     assert np.all((lag > rise) & (lag < 100e-6 - rise))
     det = ds["detected"].values
     assert np.all(det == 3) and summary["outside_range_gate"] == det.size
@@ -266,7 +266,7 @@ def test_satellite_straddling_the_overlap_edge(satellite_without_window, tmp_pat
     # tau_ref = 3.9607 ms: lags from ~37.2 to ~38.3 us, across the 37.7 us ramp: shots with
     # overlap have an SNR, shots without are flagged and have none.
     ds, _, lag = _sat_run(satellite_without_window, tmp_path, 3.9607e-3)
-    rise = make_budget(load_mission(satellite_without_window)).train.rise_s
+    rise = lab_budget(load_mission(satellite_without_window)).train.rise_s
     det, snr = ds["detected"].values, ds["snr_db"].values
     inside, beyond = lag < rise - 0.02e-6, lag > rise + 0.02e-6
     assert np.any(inside) and np.any(beyond)
@@ -283,10 +283,10 @@ def test_satellite_straddling_the_overlap_edge(satellite_without_window, tmp_pat
 @pytest.mark.parametrize("tier", TIERS)
 def test_bench_return_a_period_beyond_the_reference_is_range_ambiguous(tier):
     cfg = load_mission(CH5)
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     period_m = SPEED_OF_LIGHT_M_S * bud.train.period_s / (2 * cfg.channel.group_index)  # cT/2n
     far = [f"atm.dst={cfg.channel.distance_m + period_m}"]
-    assert make_budget(load_mission(CH5, far)).lag_s == pytest.approx(bud.lag_s, abs=1e-12)
+    assert lab_budget(load_mission(CH5, far)).lag_s == pytest.approx(bud.lag_s, abs=1e-12)
     r = _shot(far, tier)
     assert "range_ambiguous" in r["flags"]
     assert all(np.isnan(r[k]) for k in RANGE_KEYS)

@@ -12,13 +12,12 @@ import pytest
 from chirplidar.config.loader import ConfigError, config_with, load_mission
 from chirplidar.geometry import frames
 from chirplidar.geometry import pointing
-from chirplidar.mission import measure, preflight, survey
+from chirplidar.channel import footprint
+from chirplidar.mission import preflight, survey
 from chirplidar.mission.results import read_netcdf
 from chirplidar.mission.runner import run_mission
-from chirplidar.tiers.baseband import simulate_baseband
-from chirplidar.tiers.budget import make_budget
-from chirplidar.tiers.link import simulate_link
-from chirplidar.tiers.rf import simulate_rf
+from chirplidar.channel import simulate_lab
+from chirplidar.channel.lab import lab_budget
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -95,7 +94,7 @@ def test_icesat2_beam_pattern_from_the_output(tmp_path):
                                          cache_dir=tmp_path / "cache")
     seq = survey.chunk_seeds(cfg.seed, plan.n_chunks)[0]
     geom = survey.chunk_geometry(plan, scene, cfg, plan.chunk_times(0), seq, 7)
-    psig = measure.received_power(cfg, scene, geom, seq,
+    psig = footprint.received_power(cfg, scene, geom, seq,
                                   exclude_effects=("doppler", "speckle"))[0]
     for strong, weak in ((0, 1), (2, 3), (4, 5)):
         same = geom.material[:, strong] == geom.material[:, weak]
@@ -117,7 +116,7 @@ def test_narrow_window_flags_instead_of_aliasing(tmp_path):
 
 def test_impossible_window_is_a_config_error():
     cfg = load_mission(ICESAT)
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     # Closed form: beats f_hp .. f_hp + kappa 2 n W / c must stay below a 20 MHz band top.
     w_max = (20e6 - cfg.processing.highpass_hz) * SPEED_OF_LIGHT_M_S / (
         2 * cfg.channel.group_index * bud.rate_hz_per_s)
@@ -160,20 +159,20 @@ def test_tiers_agree_on_a_doppler_displaced_range(extra, sign):
     line in the band, rf, baseband and link all read it: the range moves by sign f_d / kappa
     c / (2 n) (closed form)."""
     cfg = _doppler_case(extra)
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     f_d = 2 * 20.0 / cfg.laser.wavelength_m
     shift = sign * f_d / bud.rate_hz_per_s * SPEED_OF_LIGHT_M_S / (2 * cfg.channel.group_index)
-    for tier in (simulate_rf, simulate_baseband, simulate_link):
-        out = tier(cfg, np.random.default_rng(3), batch=4)
+    for tier in ("rf", "baseband", "link"):
+        out = simulate_lab(cfg, tier, np.random.default_rng(3), batch=4)
         assert out["d_rx"] - cfg.channel.distance_m == pytest.approx(np.full(4, shift), abs=2.0), \
-            tier.__name__
+            tier
 
 
 def test_link_takes_either_sideband_when_both_are_in_band():
     """Equal-power lines: the rf tier's noise picks either; the link tier draws one with equal
     chance (binomial: 200 draws, both sides at least 70 times, p < 1e-4 otherwise)."""
     cfg = _doppler_case({})
-    out = simulate_link(cfg, np.random.default_rng(5), batch=200)
-    f_b = make_budget(cfg).f_beat_hz
+    out = simulate_lab(cfg, "link", np.random.default_rng(5), batch=200)
+    f_b = lab_budget(cfg).f_beat_hz
     up = np.sum(out["f_beat_hz"] > f_b)
     assert 70 <= up <= 130

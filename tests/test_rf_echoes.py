@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from chirplidar import load_mission
-from chirplidar.tiers import simulate_rf
-from chirplidar.tiers.budget import make_budget
+from chirplidar.channel import simulate_lab
+from chirplidar.channel.lab import lab_budget
 from chirplidar.tiers.echoes import Echoes
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 from conftest import CH5
@@ -26,13 +26,13 @@ STRONG = ["atm.Pattn=30"]  # Psig ~ -42 dBm: SNR ~ 66 dB, the noise is negligibl
 
 def _run(overrides, batch=1, echoes=None, seed=3, spectrum=False):
     cfg = load_mission(CH5, overrides)
-    return simulate_rf(cfg, np.random.default_rng(seed), batch=batch, keep_spectrum=spectrum,
+    return simulate_lab(cfg, "rf", np.random.default_rng(seed), batch=batch, keep_spectrum=spectrum,
                        echoes=echoes)
 
 
 def _metres_per_hz(overrides):
     """Range per beat frequency, c / (2 n_g kappa) (eq. 2.3.1 with the group index)."""
-    bud = make_budget(load_mission(CH5, overrides))
+    bud = lab_budget(load_mission(CH5, overrides))
     return SPEED_OF_LIGHT_M_S / (2 * bud.group_index * bud.rate_hz_per_s), bud
 
 
@@ -234,9 +234,9 @@ def test_echoes_validation():
     cfg = load_mission(CH5)
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match=r"echoes\.phase_rad must have shape \(batch, k\) = \(2, 2\)"):
-        simulate_rf(cfg, rng, batch=2, echoes=Echoes(**{**ok, "phase_rad": np.zeros((3, 2))}))
+        simulate_lab(cfg, "rf", rng, batch=2, echoes=Echoes(**{**ok, "phase_rad": np.zeros((3, 2))}))
     with pytest.raises(ValueError, match="echoes must be a chirplidar.tiers.echoes.Echoes"):
-        simulate_rf(cfg, rng, echoes=ok)
+        simulate_lab(cfg, "rf", rng, echoes=ok)
 
 
 def test_echoes_are_copied_and_normalised():

@@ -13,8 +13,7 @@ from scipy.signal.windows import tukey
 
 from chirplidar.config import load_mission
 from chirplidar.processing import analyze_records
-from chirplidar.tiers.link import simulate_link
-from chirplidar.tiers.rf import simulate_rf
+from chirplidar.channel import simulate_lab
 from conftest import CH5
 
 SHOTS = 24
@@ -30,12 +29,12 @@ def _db_mean(snr_db):
 @pytest.mark.parametrize("target_db", [10, 20, 30, 40, 50, 60, 65, 70, 75])
 def test_rf_snr_matches_link_on_the_ch5_bench(target_db):
     base = load_mission(CH5)
-    link0 = float(simulate_link(base, np.random.default_rng(0))["SNR"][0])
+    link0 = float(simulate_lab(base, "link", np.random.default_rng(0))["SNR"][0])
     pattn = base.channel.extra_attenuation_db + link0 - target_db
     cfg = load_mission(CH5, {"atm.Pattn": pattn})
-    link = float(simulate_link(cfg, np.random.default_rng(0))["SNR"][0])
+    link = float(simulate_lab(cfg, "link", np.random.default_rng(0))["SNR"][0])
     assert abs(link - target_db) < 0.05        # the sweep lands where intended
-    rf = simulate_rf(cfg, np.random.default_rng(2024 + target_db), batch=SHOTS)["SNR"]
+    rf = simulate_lab(cfg, "rf", np.random.default_rng(2024 + target_db), batch=SHOTS)["SNR"]
     # 24 shots: one shot scatters 0.3 dB (1.1 dB at 10 dB SNR), the mean 0.07 (0.2) dB. At 10 dB
     # the peak search over noise reads ~0.7 dB high (a pre-existing small-SNR bias of the argmax).
     assert abs(_db_mean(rf) - link) <= 1.5, (target_db, _db_mean(rf), link)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import write_scene, write_uav_mission
+from conftest import reference_target, write_scene, write_uav_mission
 from pyproj import Transformer
 
 from chirplidar.cli import main
@@ -125,7 +125,7 @@ def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     from chirplidar.mission.measure import sub_ray_power_fractions
     from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry
-    from chirplidar.tiers.budget import make_budget
+    from chirplidar.channel.lab import lab_budget
     from chirplidar.units import SPEED_OF_LIGHT_M_S
 
     slope = 30.0
@@ -153,24 +153,22 @@ def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     # across the spread (its own 3 dB width reads one grain), so the line shape is the spectrum
     # averaged over shots: it must widen to the spread of the footprint's beat frequencies.
     from chirplidar.tiers.echoes import Echoes
-    from chirplidar.tiers.rf import simulate_rf
-    from chirplidar.config.loader import config_with
-    from chirplidar.mission.measure import _node_config
+    from chirplidar.channel import simulate_lab
 
-    bud = make_budget(config)
+    bud = lab_budget(config)
     frac = sub_ray_power_fractions(config, scene, g)[0, 0]
     keep = frac > 0
     r0 = float(np.sum(frac * r[0]) / frac.sum())
     dtau = 2 * config.channel.group_index * (r[0][keep] - r0) / SPEED_OF_LIGHT_M_S
-    cfg = config_with(_node_config(config, []), {"channel.distance_m": r0,
-                                                 "simulation.sample_rate_hz": 1.2e9,
-                                                 "channel.extra_attenuation_db": -20.0})
+    cfg = reference_target(config, **{"channel.distance_m": r0,
+                                      "simulation.sample_rate_hz": 1.2e9,
+                                      "channel.extra_attenuation_db": -20.0})
     rng = np.random.default_rng(3)
     batch = 48
 
     def mean_spectrum(delays):
         phases = rng.uniform(0, 2 * np.pi, (batch, delays.size))
-        out = simulate_rf(cfg, rng, batch=batch, keep_spectrum=True,
+        out = simulate_lab(cfg, "rf", rng, batch=batch, keep_spectrum=True,
                           echoes=Echoes(delays, frac[keep], phases))
         return out["spectrum"]["f_hz"], np.mean(out["spectrum"]["psd_w_per_hz"], axis=0)
 

@@ -28,13 +28,14 @@ from scipy.special import erf
 
 from chirplidar import load_mission
 from chirplidar.config.loader import config_with
+from chirplidar.channel import footprint
 from chirplidar.mission import measure
 from chirplidar.mission.preflight import prepare
 from chirplidar.mission.survey import chunk_geometry, chunk_seeds
-from chirplidar.tiers.baseband import simulate_baseband
-from chirplidar.tiers.budget import make_budget
-from chirplidar.tiers.echoes import Echoes
-from chirplidar.tiers.link import simulate_link, static_phase_factor
+from chirplidar.channel import simulate_lab
+from chirplidar.channel.lab import lab_budget
+from chirplidar.tiers.echoes import Echoes, chirp_overlap, footprint_coherence, footprint_echoes
+from chirplidar.tiers.link import static_phase_factor
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 from conftest import FIELD, FLAT_SNOW, TWO_BEAMS, write_flat_uav_mission
 
@@ -81,15 +82,15 @@ def test_unresolved_footprint_is_one_echo_of_the_whole_power():
     and gain 1, so the tiers' beat power is the footprint's power. The former sum of sqrt(w_k)
     with common phase gave (sum_k sqrt(w_k))^2 = 5.9 here."""
     cfg = _field()
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     w = np.array([[0.3, 0.25, 0.2, 0.1, 0.08, 0.05, 0.02]])
-    offs, pw, phase, gain = measure.footprint_echoes(cfg, bud, w, np.zeros_like(w))
+    offs, pw, phase, gain = footprint_echoes(cfg, bud, w, np.zeros_like(w))
     assert pw.shape == (1, 1)
     np.testing.assert_allclose(offs, 0.0, atol=1e-18)
     np.testing.assert_allclose(gain, 1.0, rtol=1e-12)
     np.testing.assert_array_equal(phase, 0.0)
     # Unnormalised fractions (received power shares): the same echoes.
-    _, pw2, _, gain2 = measure.footprint_echoes(cfg, bud, 1e-9 * w, np.zeros_like(w))
+    _, pw2, _, gain2 = footprint_echoes(cfg, bud, 1e-9 * w, np.zeros_like(w))
     np.testing.assert_allclose(pw2 / pw2.sum(), 1.0)
     np.testing.assert_allclose(gain2, 1.0, rtol=1e-12)
 
@@ -99,14 +100,14 @@ def test_footprint_coherence_closed_form():
     return's chirp from f_start over B = kappa (T_r - tau), so the record energy of their common-
     phase beat is (1 + cos(2 pi f_c dtau) sinc(B dtau)) / 2 with f_c = f_start + B / 2."""
     cfg = _field("waveform.amplitude_duty_cycle=1.0")
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     tr = bud.train.rise_s
     band = bud.train.rate_hz_per_s * (tr - bud.delay_s)
     f_c = bud.train.f_start_hz + band / 2
     dtau = np.array([0.3e-9, 2e-9, 7e-9, 30e-9])
     a = np.full((dtau.size, 2), 0.5)
     d = np.column_stack([np.zeros_like(dtau), dtau])
-    got = measure.footprint_coherence(cfg, bud, a, d)
+    got = footprint_coherence(cfg, bud, a, d)
     ref = 0.5 * (1 + np.cos(2 * np.pi * f_c * dtau) * np.sinc(band * dtau))
     np.testing.assert_allclose(got, ref, atol=3e-3)   # midpoint rule on 2048 points
 
@@ -118,24 +119,24 @@ def test_spread_footprint_draws_the_mean_line():
     common phase (the smooth-surface field) miss the peak by dBs."""
     cfg = config_with(_field("processing.peak_search_max_hz=30e6", "channel.carrier_phase=optimal"),
                       {"channel.extra_attenuation_db": -40.0})
-    bud = make_budget(cfg)
+    bud = lab_budget(cfg)
     rng = np.random.default_rng(7)
     k = 24
-    delta = 1.0 / (bud.train.rate_hz_per_s * measure._overlap(cfg, bud)[2])   # one cell
+    delta = 1.0 / (bud.train.rate_hz_per_s * chirp_overlap(cfg, bud)[2])   # one cell
     dtau = np.linspace(-2.0, 2.0, k) * delta
     w = np.exp(-0.5 * (dtau / (1.2 * delta)) ** 2)
     w /= w.sum()
-    single = simulate_baseband(cfg, rng, batch=k, keep_spectrum=True,
+    single = simulate_lab(cfg, "baseband", rng, batch=k, keep_spectrum=True,
                                echoes=Echoes(dtau[:, None], np.ones((k, 1)), np.zeros((k, 1))))
     psd = single["spectrum"]["psd_w_per_hz"]
     mean_line = np.sum(w[:, None] * psd, axis=0)
-    offs, pw, phase, gain = measure.footprint_echoes(cfg, bud, w[None], dtau[None])
+    offs, pw, phase, gain = footprint_echoes(cfg, bud, w[None], dtau[None])
     cfg_g = config_with(cfg, {"channel.extra_attenuation_db": -40.0 - _db(gain[0])})
-    cells = simulate_baseband(cfg_g, rng, batch=1, keep_spectrum=True,
+    cells = simulate_lab(cfg_g, "baseband", rng, batch=1, keep_spectrum=True,
                               echoes=Echoes(offs[0], pw[0], phase[0]))["spectrum"]["psd_w_per_hz"][0]
     assert abs(_db(cells.max() / mean_line.max())) < 0.3
     assert cells.sum() / mean_line.sum() == pytest.approx(1.0, rel=0.03)
-    smooth = simulate_baseband(cfg, rng, batch=1, keep_spectrum=True,
+    smooth = simulate_lab(cfg, "baseband", rng, batch=1, keep_spectrum=True,
                                echoes=Echoes(dtau, w ** 2, np.zeros(k)))["spectrum"]["psd_w_per_hz"][0]
     # (the coherent sum's power, rescaled to the mean power as its energy would be)
     assert abs(_db(smooth.max() / mean_line.max() * mean_line.sum() / smooth.sum())) > 1.0
@@ -150,7 +151,7 @@ def test_subray_speckle_fields_are_circular_gaussian():
     geom = SimpleNamespace(sub_range_m=np.full((n, 1, k), 300.0), range_true_m=np.full((n, 1), 300.0))
     scene = SimpleNamespace(effects=["speckle"])
     seq = np.random.SeedSequence(11)
-    z = measure.subray_speckle_fields(cfg, scene, geom, seq)
+    z = footprint.subray_speckle_fields(cfg, scene, geom, seq)
     assert z.shape == (n, 1, k)
     assert abs(np.mean(np.abs(z) ** 2) - 1.0) < 0.01                 # SE 0.0027
     w = np.exp(-2.0 * np.linspace(0, 1, k) ** 2)
@@ -162,8 +163,8 @@ def test_subray_speckle_fields_are_circular_gaussian():
     assert abs(np.var(field.real) - 0.5) < 0.02 and abs(np.var(field.imag) - 0.5) < 0.02
     assert abs(np.mean(field.real * field.imag)) < 0.015
     # Same seed, same fields; no speckle, no fields (and nothing drawn).
-    np.testing.assert_array_equal(z, measure.subray_speckle_fields(cfg, scene, geom, seq))
-    assert measure.subray_speckle_fields(cfg, SimpleNamespace(effects=[]), geom, seq) is None
+    np.testing.assert_array_equal(z, footprint.subray_speckle_fields(cfg, scene, geom, seq))
+    assert footprint.subray_speckle_fields(cfg, SimpleNamespace(effects=[]), geom, seq) is None
 
 
 # ------------------------------------------------------------------------------- carrier phase
@@ -173,9 +174,9 @@ def test_static_phase_factor_is_the_link_tiers_phase_power():
     for dist in (300.0, 300.0001, 300.0003):   # propagation phases of 0.15 and 0.46 um apart
         prop = _field("channel.carrier_phase=propagation", f"channel.distance_m={dist}")
         opt = config_with(prop, {"channel.carrier_phase": "optimal"})
-        ratio = _lin(simulate_link(prop, np.random.default_rng(0))["SNR"][0]
-                     - simulate_link(opt, np.random.default_rng(0))["SNR"][0])
-        bud = make_budget(prop)
+        ratio = _lin(simulate_lab(prop, "link", np.random.default_rng(0))["SNR"][0]
+                     - simulate_lab(opt, "link", np.random.default_rng(0))["SNR"][0])
+        bud = lab_budget(prop)
         psi = -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
         assert ratio == pytest.approx(float(static_phase_factor(prop, psi)), rel=1e-9, abs=1e-12)
     psi = np.linspace(0, 2 * np.pi, 1000, endpoint=False)
@@ -195,8 +196,8 @@ def test_link_static_phase_per_shot(tmp_path):
                                            overrides=[*over, f"channel.carrier_phase={cp}"])
         out[cp] = _lin(measure.measure_link(config, scene, geom, seq)["snr_db"])
     f = out["propagation"] / out["optimal"]
-    _, r_mean, _, _ = measure.received_power(config, scene, geom, seq)
-    bud = make_budget(config)
+    _, r_mean, _, _ = footprint.received_power(config, scene, geom, seq)
+    bud = lab_budget(config)
     tau = 2 * config.channel.group_index * r_mean / SPEED_OF_LIGHT_M_S
     psi = -2 * np.pi * np.mod(bud.nu_hz * tau, 1.0)          # reference_delay_s = 0 here
     np.testing.assert_allclose(f, np.sin(psi) ** 2, rtol=1e-6, atol=1e-9)
@@ -242,7 +243,7 @@ def test_baseband_without_speckle_conserves_power(tmp_path):
     for j in range(2):
         assert abs(_db(snr[:, j].mean() / link[:, j].mean())) < 0.5
     # Ranges: the power-weighted mean range within the Cramer-Rao scatter (~2 mm here).
-    _, r_mean, _, _ = measure.received_power(config, scene, geom, seq)
+    _, r_mean, _, _ = footprint.received_power(config, scene, geom, seq)
     assert np.all(np.abs(np.mean(bb["range_measured"] - r_mean, axis=0)) < 0.005)
 
     config, scene, geom, seq = _survey(tmp_path, "f", stop=10.0,

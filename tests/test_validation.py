@@ -7,7 +7,7 @@ import pytest
 
 from chirplidar import load_mission, simulate_shot, sweep
 from chirplidar.analysis import sensitivity_at
-from chirplidar.tiers import simulate_rf
+from chirplidar.channel import simulate_lab
 from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from conftest import BENCH, CH5, SMALL
 
@@ -139,7 +139,7 @@ def test_phase_diversity_fading_statistics():
     # to keep 20 dB of fading range above that floor.
     cfg = load_mission(BENCH, SMALL + ["sys.CxMode=phase_diversity", "channel.carrier_phase=random",
                                        "atm.Pattn=0", "mzm.Vdc=2.0", "sys.f_highpass=5e6"])
-    out = simulate_rf(cfg, np.random.default_rng(2), batch=400)
+    out = simulate_lab(cfg, "rf", np.random.default_rng(2), batch=400)
     arm1 = 10 ** (out["arm1_Crx"] / 10)
     frac_peak = np.mean(arm1 < 0.1 * np.max(arm1))
     frac_mean = np.mean(arm1 < 0.1 * np.mean(arm1))

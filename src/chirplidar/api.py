@@ -14,23 +14,17 @@ import warnings
 import numpy as np
 import xarray as xr
 
+from .channel.lab import simulate_lab
 from .config import MissionConfig, config_with, resolve_key
-from .tiers import TIERS
 from .tiers.common import OUTPUT_LONG_NAMES, OUTPUT_NAMES, OUTPUT_UNITS
+from .tiers.registry import get_tier
 
-__all__ = ["simulate_shot", "sweep", "simulate_mission_shot", "sweep_mission", "OUTPUT_NAMES",
-           "OUTPUT_UNITS"]
+__all__ = ["simulate_shot", "simulate_lab", "sweep", "simulate_mission_shot", "sweep_mission",
+           "OUTPUT_NAMES", "OUTPUT_UNITS"]
 
 
 def _rng(config: MissionConfig, seed: int | None) -> np.random.Generator:
     return np.random.default_rng(config.seed if seed is None else seed)
-
-
-def _tier(name: str):
-    try:
-        return TIERS[name]
-    except KeyError:
-        raise ValueError(f"unknown tier '{name}'; choose one of {', '.join(TIERS)}") from None
 
 
 def simulate_shot(config: MissionConfig, seed: int | None = None, tier: str = "rf",
@@ -44,7 +38,7 @@ def simulate_shot(config: MissionConfig, seed: int | None = None, tier: str = "r
     geometry: :func:`simulate_mission_shot` evaluates a shot of the survey (a UserWarning says so).
     """
     _warn_if_survey(config, "simulate_shot", "simulate_mission_shot")
-    raw = _tier(tier)(config, _rng(config, seed), batch=1, keep_spectrum=return_spectrum)
+    raw = simulate_lab(config, tier, _rng(config, seed), keep_spectrum=return_spectrum)
     return _shot_floats(raw)
 
 
@@ -142,12 +136,12 @@ def sweep(config: MissionConfig, vary: str, start: float, stop: float, n: int, r
     _warn_if_survey(config, "sweep", "sweep_mission")
     key = resolve_key(vary)
     xs = _sweep_values(start, stop, n, scale)
-    run = _tier(tier)
+    get_tier(tier)   # an unknown tier is refused before the first point
     children = np.random.SeedSequence(config.seed if seed is None else seed).spawn(n)
     rows = []
     for i in _progress(range(n), vary, progress):
         cfg = config_with(config, {key: float(xs[i])})
-        rows.append(run(cfg, np.random.default_rng(children[i]), batch=repeat))
+        rows.append(simulate_lab(cfg, tier, np.random.default_rng(children[i]), batch=repeat))
     return _sweep_dataset(rows, xs, key, vary, repeat, tier,
                           config.seed if seed is None else seed)
 

@@ -90,7 +90,7 @@ def bench_tiers(mission: str | Path | None = None, overrides: list[str] | None =
     (rf_shot_s / baseband_shot_s) and ``link_shots_per_s``.
     """
     from .config import load_mission
-    from .tiers import simulate_baseband, simulate_link, simulate_rf
+    from .channel.lab import simulate_lab
 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
@@ -99,11 +99,11 @@ def bench_tiers(mission: str | Path | None = None, overrides: list[str] | None =
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     cfg = load_mission(mission if mission is not None else default_mission_path(), overrides or [])
     calls = {
-        "rf": (lambda: simulate_rf(cfg, np.random.default_rng(seed), batch=1), 1),
-        "baseband": (lambda: simulate_baseband(cfg, np.random.default_rng(seed),
-                                               batch=int(baseband_batch)), int(baseband_batch)),
-        "link": (lambda: simulate_link(cfg, np.random.default_rng(seed), batch=int(link_batch)),
-                 int(link_batch)),
+        "rf": (lambda: simulate_lab(cfg, "rf", np.random.default_rng(seed)), 1),
+        "baseband": (lambda: simulate_lab(cfg, "baseband", np.random.default_rng(seed),
+                                          batch=int(baseband_batch)), int(baseband_batch)),
+        "link": (lambda: simulate_lab(cfg, "link", np.random.default_rng(seed),
+                                      batch=int(link_batch)), int(link_batch)),
     }
     for fn, _ in calls.values():
         fn()  # warm-up: caches, FFT plans

@@ -176,12 +176,12 @@ def pattn_for_snr(config, snr_db: float, *, start_db: float | None = None,
     """``channel.extra_attenuation_db`` (atm.Pattn) at which the link tier's mean SNR is
     ``snr_db`` (it falls 1 dB per dB of attenuation; a few Newton steps of slope -1)."""
     from ..config import config_with
-    from ..tiers import simulate_link
+    from ..channel.lab import simulate_lab
 
     pattn = config.channel.extra_attenuation_db if start_db is None else start_db
     for _ in range(iterations):
         cfg = config_with(config, {"channel.extra_attenuation_db": pattn})
-        snr = float(np.mean(simulate_link(cfg, np.random.default_rng(0), batch=1)["SNR"]))
+        snr = float(np.mean(simulate_lab(cfg, "link", np.random.default_rng(0))["SNR"]))
         if not math.isfinite(snr):
             raise ValueError(f"the link tier reads SNR = {snr} at atm.Pattn = {pattn:g} dB: no "
                              "return to place the SNR points with")
@@ -246,10 +246,11 @@ def _run(setting: Setting, cfg, seed: int, point: int, shots: int, chunk: int,
          echo_offsets=None, echo_weights=None, echo_phases=None) -> tuple[list[dict], float]:
     """All shots of one setting: (tier outputs per chunk, seconds per shot: the median over the
     chunks of the chunk's wall time over its shots, the warm-up excluded)."""
-    from ..tiers import TIERS
+    from ..channel.lab import simulate_lab
     from ..tiers.echoes import Echoes
 
-    fn = TIERS[setting.tier]
+    def fn(cfg, rng, **kw):
+        return simulate_lab(cfg, setting.tier, rng, **kw)
 
     def echoes(rows: slice):
         if echo_offsets is None:

@@ -97,7 +97,7 @@ def default_cases() -> list[Case]:
 def run_case(case: Case, *, n_rf: int, n_baseband: int, seed: int = 0) -> dict:
     """Run one case in each of its tiers; returns {tier: {snr_db, bias_m, rms_m, shots}}."""
     from .. import load_mission
-    from ..tiers import TIERS
+    from ..channel.lab import simulate_lab
 
     base = [f"processing.peak_search_max_hz={SEARCH_MAX_HZ}", *case.overrides]
     if case.target_snr_db is not None:
@@ -108,7 +108,8 @@ def run_case(case: Case, *, n_rf: int, n_baseband: int, seed: int = 0) -> dict:
         n = n_rf if tier == "rf" else n_baseband
         kw = {} if case.echoes is None else {"echoes": case.echoes}
         # Batches of 25 shots with seeds seed, seed + 1, ...: the same seeds in every tier.
-        rows = [TIERS[tier](cfg, np.random.default_rng(seed + i), batch=min(25, n - 25 * i), **kw)
+        rows = [simulate_lab(cfg, tier, np.random.default_rng(seed + i), batch=min(25, n - 25 * i),
+                             **kw)
                 for i in range(-(-n // 25))]
         snr = np.concatenate([r["SNR"] for r in rows])
         err = np.concatenate([r["d_error"] for r in rows])

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..config.models_effects import EFFECT_NAMES
 from ..doppler import doppler_shift_hz
+from ..streams import STREAMS, child_stream
 from ..target import speckle_phase, speckle_power
 
 
@@ -168,16 +169,15 @@ EFFECTS: dict[str, Effect] = {
     "turbulence": Effect("turbulence", "phase-only turbulence in the pupil: mean coupling loss "
                          "(mutual coherence) or frozen-flow fading from shot to shot", _turbulence),
 }
-if tuple(EFFECTS) != EFFECT_NAMES:  # the config's list of names and the registry are one list
-    raise ImportError("channel.effects.EFFECTS and config.models.EFFECT_NAMES disagree")
+# The config's list of names, the registry and the effects' random streams are one list.
+if tuple(EFFECTS) != EFFECT_NAMES or any(f"effect.{n}" not in STREAMS for n in EFFECT_NAMES):
+    raise ImportError("channel.effects.EFFECTS, config.models.EFFECT_NAMES and the effect "
+                      "streams of chirplidar.streams disagree")
 
 
 def effect_rng(rng: np.random.Generator, name: str) -> np.random.Generator:
     """The named effect's own stream: a child of ``rng``'s SeedSequence keyed by the effect."""
-    seq = rng.bit_generator.seed_seq
-    child = np.random.SeedSequence(entropy=seq.entropy,
-                                   spawn_key=tuple(seq.spawn_key) + (1000 + EFFECT_NAMES.index(name),))
-    return np.random.default_rng(child)
+    return child_stream(rng, f"effect.{name}")
 
 
 def pipeline(config) -> list[Effect]:

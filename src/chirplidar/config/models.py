@@ -21,9 +21,8 @@ from .models_survey import AttitudeConfig, Beams, Platform, SceneRef, SurveyRun
 MIN_RAMP_SAMPLES = 4
 #: Seeds are stored as a signed 64-bit NetCDF attribute.
 MAX_SEED = 2**63 - 1
-# Heterodyne IF band-pass half-width as a multiple of the chirp's top frequency (its band must fit
-# below Nyquist; the tiers filter with it).
-IF_HALF_WIDTH_FACTOR = 1.25
+# The heterodyne IF band (the tiers filter with it) must fit below Nyquist.
+from ..tiers.budget import IF_HALF_WIDTH_FACTOR  # noqa: E402
 
 
 class MissionConfig(StrictModel):

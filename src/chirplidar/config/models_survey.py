@@ -8,6 +8,7 @@ from typing import Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from ..tiers.registry import TIER_NAMES
 from .base import StrictModel
 
 #: Beams of a custom pattern: every shot casts each beam's sub-rays (ICESat-2 has 6, a
@@ -224,7 +225,7 @@ def _utc(text: str):
 class SurveyRun(StrictModel):
     """What to run: shot clock, time span, tier, detection, footprint sampling, chunking."""
 
-    tier: Literal["link", "baseband", "rf"]
+    tier: Literal[TIER_NAMES]  # type: ignore[valid-type]
     prf_hz: float = Field(gt=0, description="record (shot) rate; each record averages "
                           "processing.averages chirps (sys.avg)")
     start_s: float | None = Field(None, description="first shot time, s after the path start "

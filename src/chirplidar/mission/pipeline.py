@@ -144,7 +144,7 @@ def _height_sigma_m(config, geom, meas, r_meas, det) -> np.ndarray:
     ``tiers.link.crb_sigma_f_hz``) at the shot's SNR, for a tone of the duration 0.886 / (3 dB
     width) that its beat width implies, turned into range by c / (2 n kappa) and into height by
     the height change per metre of range along the beam (its vertical component)."""
-    from ..tiers.budget import make_budget
+    from ..channel.lab import lab_budget
     from ..tiers.link import crb_sigma_f_hz
     from ..units import SPEED_OF_LIGHT_M_S
 
@@ -152,7 +152,7 @@ def _height_sigma_m(config, geom, meas, r_meas, det) -> np.ndarray:
     ok = det & (width > 0)
     snr = 10.0 ** (np.where(ok, meas["snr_db"], 0.0) / 10.0)
     t_eff = 0.886 / np.where(ok, width, 1.0)
-    rate = make_budget(config).rate_hz_per_s
+    rate = lab_budget(config).rate_hz_per_s
     sigma_r = (crb_sigma_f_hz(snr, config.processing.rbw_hz, t_eff) * SPEED_OF_LIGHT_M_S
                / (2.0 * config.channel.group_index * rate))
     r = np.where(ok, r_meas, 0.0)

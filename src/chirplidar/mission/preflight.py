@@ -27,13 +27,14 @@ from pathlib import Path
 import numpy as np
 
 from ..config.loader import ConfigError, config_with, load_mission, scene_overrides
+from ..tiers.registry import TIER_NAMES
 from . import measure
 from .results import BYTES_PER_BEAM_SHOT
 from .survey import (flight_section, check_crosses_scene, chunk_geometry, plan_survey,
                      survey_polygon_xy)
 
-#: The tiers a survey runs through.
-TIERS = ("link", "baseband", "rf")
+#: The tiers a survey runs through: every registered tier.
+TIERS = TIER_NAMES
 
 #: A CW chirped lidar's laser above this is suspicious: the thesis's sources are a few mW
 #: (8.58 mW, Table 4.4) and a fibre amplifier gives a few W; more is probably mW typed as W.
@@ -98,10 +99,11 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
         raise ConfigError(f"{src} with scene {scene_path.name} (effects = "
                           f"{list(scene.effects)}): {why}") from None
     if config.survey is not None and config.survey.tier == "baseband":
-        from ..tiers.baseband import check_supported
+        from ..config.instrument import instrument_from_config
+        from ..tiers.registry import get_tier
 
         try:
-            check_supported(config)
+            get_tier("baseband").check(instrument_from_config(config))
         except ValueError as exc:
             raise ConfigError(f"{src}: survey.tier = 'baseband': {exc}") from None
     plan = plan_survey(config, scene, src)

@@ -13,19 +13,17 @@ the shot is taken from the survey itself, exactly as ``chirplidar run`` computes
    shot (:func:`survey.chunk_geometry` over the whole chunk, with the chunk's own SeedSequence:
    the same pointing jitter and the same footprint cone, whose size follows the chunk's median
    range, and ``survey.subrays_per_beam`` footprint sub-rays);
-3. the received power as the run computes it for the tier: :func:`measure.received_power` (link)
-   or :func:`measure._footprint_returns` (rf: without the speckle effect's power draw, which the
-   sub-rays' own speckle fields replace), with the chunk's effect streams;
-4. the tier's input configuration, as the run builds it for that shot: the instrument aimed at
-   the ideal reference target (:func:`measure.shot_base_config`) at the footprint's power-weighted
-   mean range R0 (``channel.distance_m``), the shot's closing speed as the Doppler velocity when
-   the scene enables Doppler, and ``channel.extra_attenuation_db`` = 10 log10(f_ref(R0) P_tx /
-   P_sig) (f_ref: :func:`measure.reference_power_fraction`, the reference target's received over
-   transmitted power) that turns the reference power into the shot's own. The rf tier takes the
-   footprint's echoes and the echoes' gain in that attenuation (:func:`measure.rf_shot_setup`,
-   the function ``measure_rf`` calls for every shot), and the shot's own rf stream; the link tier
-   uses the same configuration without echoes (``measure_link`` reads the same closed form from
-   its (range, attenuation) node table).
+3. the footprint's returns as the run computes them for the tier, with the chunk's effect
+   streams: ``channel.footprint.received`` (link) or ``channel.footprint.footprint_returns``
+   (rf, baseband: without the speckle effect's power draw, which the sub-rays' own speckle
+   fields replace);
+4. the tier's :class:`~chirplidar.tiers.model.Returns`, as the run builds them for that shot:
+   the footprint's power-weighted mean range R0, its received power, the shot's Doppler shift
+   when the scene enables Doppler and the run's range gate. The rf and baseband tiers take the
+   footprint's echoes and their gain (:func:`measure.rf_shot_returns`, the function
+   ``measure_rf`` calls for every shot) and, by default, the shot's own rf stream; the link tier
+   takes the mean return (``measure_link`` reads the same closed form from its (range,
+   attenuation) node table).
 
 What the link tier returns is its closed form for that configuration: with ``channel.carrier_phase
 = "random"`` the mean over a uniform carrier phase (the run multiplies each shot's SNR by its own
@@ -44,16 +42,20 @@ the shot's own stream (the run's rf stream of that shot) unless a generator is g
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..config.loader import ConfigError, config_with
+from ..channel.footprint import footprint_returns, received, shot_doppler_hz
+from ..channel.lab import lab_budget
+from ..config.instrument import instrument_from_config
+from ..config.loader import ConfigError
+from ..tiers.model import Instrument, Returns
+from ..tiers.registry import TIER_NAMES, TIERS
 from . import measure
 from .survey import chunk_geometry
-
-TIERS = ("rf", "link")
 
 #: Geometry keys added to a mission shot's outputs (``t_s`` [s] of the mission clock, ``beam``,
 #: ``shot_index`` in the plan, ``range_m`` true range of the beam axis to the surface,
@@ -83,15 +85,14 @@ class Prepared:
 class MissionShot:
     """One survey shot as the run evaluates it: the tier's input and the shot's geometry.
 
-    ``config``: the instrument aimed at the shot (the tier's input configuration); ``echoes``: the
-    footprint's :class:`~chirplidar.tiers.echoes.Echoes` (rf tier) or None (link tier);
-    ``seq``/``flat``: the chunk's SeedSequence and the shot-beam's flat index in the chunk (shot
-    x beams + beam), which name its random stream (:meth:`rng`); ``geometry``: the
-    :data:`GEOMETRY_KEYS`.
+    ``instrument`` and ``returns``: the tier's input (the returns carry the footprint's echoes
+    for the rf and baseband tiers, the mean return for the link tier); ``seq``/``flat``: the
+    chunk's SeedSequence and the shot-beam's flat index in the chunk (shot x beams + beam),
+    which name its random stream (:meth:`rng`); ``geometry``: the :data:`GEOMETRY_KEYS`.
     """
 
-    config: object
-    echoes: object
+    instrument: Instrument
+    returns: Returns
     tier: str
     seq: np.random.SeedSequence
     flat: int
@@ -190,7 +191,7 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
     whose child c seeds chunk c (default ``SeedSequence(config.seed)``, as the run).
     """
     if tier not in TIERS:
-        raise ConfigError(f"--tier {tier}: a survey shot runs the tiers {', '.join(TIERS)}")
+        raise ConfigError(f"--tier {tier}: a survey shot runs the tiers {', '.join(TIER_NAMES)}")
     prep = prepare_mission(mission, overrides=overrides, seed=seed)
     config, scene = prep.config, prep.scene
     if config.system.modulation != "fm_chirp":
@@ -198,30 +199,25 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
                           "(system.modulation = 'fm_chirp')")
     geom, seq, i, k = locate_shot(prep, at_s=at_s, beam=beam, root=root)
     j = int(beam)
-    from ..tiers.budget import make_budget
-
-    ptx_w = make_budget(config).ptx_w
-    base = measure.shot_base_config(config, scene)
-    if tier == "rf":
-        returns = measure._footprint_returns(config, scene, geom, seq)
-        psig, r_mean = returns[0], returns[1]
+    ptx_w = lab_budget(config).ptx_w
+    instrument = instrument_from_config(config)
+    f_d = shot_doppler_hz(config, scene, geom)
+    if tier == "link":
+        psig, r_mean = received(config, scene, geom, seq)[:2]
     else:
-        psig, r_mean = measure.received_power(config, scene, geom, seq)[:2]
+        fr = footprint_returns(config, scene, geom, seq)
+        psig, r_mean = fr.psig_w, fr.range_m
     if not (np.isfinite(r_mean[i, j]) and psig[i, j] > 0):
         raise ConfigError(f"{prep.source}: beam {j} of the shot at t = {geom.t_s[i]:g} s "
                           "receives no power from its footprint")
-    if tier == "rf":
-        cfg, echoes = measure.rf_shot_setup(config, base, ptx_w, geom, returns, i, j)
-    else:
-        r0 = float(r_mean[i, j])   # aimed as measure_link aims each shot
-        att = float(measure.reference_attenuation_db(config, r0, psig[i, j] / ptx_w))
-        over = {"channel.distance_m": r0, "channel.extra_attenuation_db": att}
+    if tier == "link":
         ref = measure.window_reference_delay_s(config, geom, r_mean)[0]
-        if ref is not None:   # the run's range gate for this shot
-            over["system.reference_delay_s"] = float(ref[i, j])
-        if "doppler" in base.effects.enabled:
-            over["effects.doppler.radial_velocity_mps"] = float(geom.doppler_speed_mps[i, j])
-        cfg, echoes = config_with(base, over), None
+        returns = measure.survey_returns(   # the mean return, with the run's range gate
+            config, float(r_mean[i, j]), float(psig[i, j]) / ptx_w,
+            reference_delay_s=None if ref is None else float(ref[i, j]),
+            doppler_hz=float(f_d[i, j]))
+    else:
+        returns = measure.rf_shot_returns(config, instrument, ptx_w, geom, fr, i, j, f_d)
     code = int(geom.material[i, j])
     xyz = geom.hit_xyz_m[i, j]
     geometry = {
@@ -233,7 +229,7 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
         "off_nadir_deg": float(np.degrees(geom.off_nadir_rad[i, j])),
         "platform_height_m": float(geom.platform_xyh[i, 2]),
     }
-    return MissionShot(config=cfg, echoes=echoes, tier=tier, seq=seq,
+    return MissionShot(instrument=instrument, returns=returns, tier=tier, seq=seq,
                        flat=i * geom.range_true_m.shape[1] + j, geometry=geometry)
 
 
@@ -248,14 +244,12 @@ def simulate_mission_shot(mission, *, tier: str = "rf", at_s=None, beam: int = 0
     given, else from the shot's own stream (:meth:`MissionShot.rng`): with ``batch = 1`` the rf
     tier's result is then the run's for that shot (same configuration, echoes and stream).
     """
-    from ..tiers import TIERS as TIER_FUNCS
-
     shot = mission_shot_config(mission, tier=tier, at_s=at_s, beam=beam, overrides=overrides,
                                seed=seed, root=root)
-    kwargs = {"echoes": shot.echoes} if shot.echoes is not None else {}
-    raw = TIER_FUNCS[tier](shot.config, shot.rng() if rng is None else rng, batch=int(batch),
-                           keep_spectrum=keep_spectrum, **kwargs)
-    raw = dict(raw)
+    returns = dataclasses.replace(shot.returns, batch=int(batch))   # records of one footprint
+    raw = dict(TIERS[tier].simulate(shot.instrument, returns,
+                                    shot.rng() if rng is None else rng,
+                                    keep_spectrum=keep_spectrum))
     raw["geometry"] = shot.geometry
     raw["mission_geometry"] = True
     return raw

@@ -31,17 +31,7 @@ from ..geometry.pointing import (Attitude, BeamPattern, conical_scan, nadir_beam
 from ..geometry.footprints import footprint_subrays
 from ..geometry.raycast import cast_rays
 from ..optics import beam_radius_m
-
-#: Named random streams of a chunk (spawn-key suffixes).
-STREAM_JITTER = 1
-STREAM_FOOTPRINT = 2
-
-
-def stream(seq: np.random.SeedSequence, key: int) -> np.random.Generator:
-    """A named child stream of ``seq`` (independent of how many others exist)."""
-    child = np.random.SeedSequence(entropy=seq.entropy, spawn_key=tuple(seq.spawn_key) + (key,))
-    return np.random.default_rng(child)
-
+from ..streams import stream
 
 def chunk_seeds(seed: int, n_chunks: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence(seed).spawn(n_chunks)
@@ -403,7 +393,7 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
                    n_sub: int) -> ChunkGeometry:
     """Cast every shot's beams and footprint sub-rays on the scene terrain."""
     n, b = t_s.size, plan.beams.n_beams
-    jit = stream(seq, STREAM_JITTER) if plan.jitter_rad_rms > 0 else None
+    jit = stream(seq, "jitter") if plan.jitter_rad_rms > 0 else None
     sg = shot_geometry(plan.path, t_s, plan.beams, plan.attitude, epsg=plan.epsg,
                        jitter_rad_rms=plan.jitter_rad_rms, rng=jit,
                        target_height_m=plan.target_height_m, entry_height_m=plan.entry_height_m,

@@ -49,8 +49,7 @@ import scipy.linalg.blas
 from scipy.special import jv
 
 from .._threads import single_threaded_blas
-from ..channel.effects import ShotReturns, channel_returns, effect_rng
-from ..doppler import doppler_shift_hz
+from ..streams import child_stream
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import balanced_noise, current_noise, current_noise_variance
@@ -60,7 +59,8 @@ from ..units import ELEMENTARY_CHARGE_C
 from .budget import coupler_field_transmission, make_budget, responsivities
 from .common import (analyze_block, concatenate_blocks, detection_flags, echo_mean_offset_s,
                      finish_outputs, optimal_phase, peak_search_max_hz)
-from .echoes import Echoes
+from .model import Instrument, Measurements, Returns
+from .registry import BASEBAND_SUPPORTS
 
 _TABLE_POINTS = 4097        # Bessel tables over the envelope w in [0, 1] (linear interpolation:
                             # error < (1/4096)^2 / 8 of J'' ~ 1e-8 of the beat amplitude)
@@ -69,12 +69,12 @@ DIRECT_POWER_AVERAGE = True  # draw eligible power averages per bin (tests switc
 _BLOCK_ELEMENTS = 1 << 20   # shots x records x samples per block (bounds the memory: 8 MB per array)
 
 
-def band_top_hz(config, bud) -> float:
+def band_top_hz(config: Instrument) -> float:
     """Top of the band the baseband tier simulates: ``processing.peak_search_max_hz``, else the
     chirp's start frequency F1 + F0 (the self-chirped product's other terms lie at and above it)."""
     top = config.processing.peak_search_max_hz
     if top is None:
-        top = bud.train.f_start_hz
+        top = config.train.f_start_hz
     if top <= config.processing.highpass_hz:
         raise ValueError(
             f"baseband tier: the band top {top:g} Hz (processing.peak_search_max_hz, else the "
@@ -84,20 +84,17 @@ def band_top_hz(config, bud) -> float:
     return float(top)
 
 
-def baseband_grid(config, bud) -> tuple[float, int]:
+def baseband_grid(config: Instrument, doppler_max_hz: float = 0.0) -> tuple[float, int]:
     """(sample rate in Hz, samples N) of the baseband record: ``simulation.baseband_rate_hz`` or
     twice the band top, raised to a fast FFT length over the record duration. A Doppler shift
-    f_d (the ``doppler`` effect) moves lines up to f_d above the band top: the grid reaches them,
-    so they do not alias into the band (the rf tier's full rate never aliases them)."""
+    up to ``doppler_max_hz`` (the largest |f_d| of the batch) moves lines up to f_d above the
+    band top: the grid reaches them, so they do not alias into the band (the rf tier's full
+    rate never aliases them)."""
     sim = config.simulation
     if sim.baseband_rate_hz is not None:
         rate = sim.baseband_rate_hz
     else:
-        f_d = 0.0
-        if "doppler" in config.effects.enabled:
-            f_d = abs(doppler_shift_hz(config.effects.doppler.radial_velocity_mps,
-                                       config.laser.wavelength_m))
-        rate = 2.0 * (band_top_hz(config, bud) + f_d)
+        rate = 2.0 * (band_top_hz(config) + doppler_max_hz)
     n = scipy.fft.next_fast_len(int(math.ceil(sim.duration_s * rate - 1e-9)), real=True)
     return n / sim.duration_s, n
 
@@ -139,8 +136,9 @@ class _Product:
     instrument on one baseband grid. The LO side is computed once; each delay costs one chirp-phase
     evaluation, one envelope and the table lookups."""
 
-    def __init__(self, config, bud, t: np.ndarray, top_hz: float, max_lag_s: float):
-        train = bud.train
+    def __init__(self, config: Instrument, ref_delay_s: float, t: np.ndarray, top_hz: float,
+                 max_lag_s: float):
+        train = config.train
         self.train = train
         self.alpha, self.beta = mzm_drive_angles(train, config.modulator.bias_v,
                                                  config.modulator.v_pi_v)
@@ -149,7 +147,7 @@ class _Product:
         n_max = max(self.n_list)
         self.table = _bessel_table(self.beta, n_max)
         self.table2 = _bessel_table(2.0 * self.beta, 0)[0]  # J0(2 beta w): the slow power
-        tc_lo = train.time_in_chirp(t - bud.ref_delay_s)
+        tc_lo = train.time_in_chirp(t - ref_delay_s)
         w_lo = train.envelope(tc_lo)
         self.phase_lo = train.phase(tc_lo)
         self.j_lo = [_lookup(self.table[n], w_lo) for n in range(n_max + 1)]
@@ -173,270 +171,298 @@ class _Product:
 
 
 @lru_cache(maxsize=16)
-def _shared_beat(config, delay_s: float, fs_hz: float, n: int):
-    """The product for one delay on the whole record (cached: sweeps and batches of one geometry
-    reuse it shot after shot; read-only arrays)."""
-    bud = make_budget(config)
+def _shared_beat(config: Instrument, ref_delay_s: float, lag_s: float, delay_s: float,
+                 fs_hz: float, n: int):
+    """The product for one delay on the whole record, the LO delayed by ``ref_delay_s``, its
+    harmonics chosen for the lag ``lag_s`` (cached: sweeps and batches of one geometry reuse it
+    shot after shot; read-only arrays)."""
     t = np.arange(n) / fs_hz
-    prod = _Product(config, bud, t, band_top_hz_or_nyquist(config, bud, fs_hz), bud.lag_s)
+    prod = _Product(config, ref_delay_s, t, band_top_hz_or_nyquist(config, fs_hz), lag_s)
     beat, p_sig = prod.beat(np.array([delay_s]))
     for arr in (beat, p_sig, prod.power_lo):
         arr.setflags(write=False)
     return beat, p_sig, prod.power_lo
 
 
-def band_top_hz_or_nyquist(config, bud, fs_hz: float) -> float:
+def band_top_hz_or_nyquist(config: Instrument, fs_hz: float) -> float:
     """The band actually simulated: the band top, or the Nyquist frequency if that is lower."""
     if config.simulation.baseband_rate_hz is not None:
         return min(fs_hz / 2, config.processing.peak_search_max_hz or fs_hz / 2)
-    return min(band_top_hz(config, bud), fs_hz / 2)
+    return min(band_top_hz(config), fs_hz / 2)
 
 
-def check_supported(config):
-    """Raise ValueError naming the setting when the baseband tier does not model a configuration."""
-    sysc, proc = config.system, config.processing
-    if sysc.modulation != "fm_chirp":
-        raise ValueError("the baseband tier models FM chirps; use --tier rf for system.modulation "
-                         "= 'pn_code' (sys.MxMode = PN)")
-    if sysc.receiver != "coherent" or sysc.coherent_mode not in ("homodyne", "phase_diversity"):
-        raise ValueError(
-            "the baseband tier models the self-chirped coherent receivers (system.receiver = "
-            "'coherent' with coherent_mode 'homodyne' or 'phase_diversity'); direct and "
-            f"heterodyne detection (receiver = {sysc.receiver!r}, coherent_mode = "
-            f"{sysc.coherent_mode!r}) run in the rf and link tiers")
-    if proc.doppler_recovery != "none":
-        raise ValueError("processing.doppler_recovery = 'squaring' is modelled in the rf tier only "
-                         "(use --tier rf): squaring the full-rate record folds in products the "
-                         "baseband record does not hold")
+def simulate_baseband(config: Instrument, returns: Returns, rng: np.random.Generator, *,
+                      keep_spectrum: bool = False) -> Measurements:
+    """Simulate the batch of ``returns`` at the detector's output rate; arrays of shape (batch,).
 
-
-def simulate_baseband(config, rng: np.random.Generator, *, batch: int = 1,
-                      keep_spectrum: bool = False, echoes: Echoes | None = None,
-                      shot_returns=None) -> dict:
-    """Simulate ``batch`` independent shots at the detector's output rate; arrays of shape (batch,).
-
-    Same interface and outputs as :func:`~chirplidar.tiers.rf.simulate_rf` (``echoes``: each
-    shot's footprint as delayed sub-returns). ``shot_returns`` (optional
-    :class:`~chirplidar.channel.effects.ShotReturns`, arrays (batch,)): per-shot returns from the
-    caller's geometry (received power relative to the configuration's, carrier phase, Doppler),
-    combined with the enabled effects' own; a survey batches shots of different ranges this way.
-    Shots are processed in blocks of at most 2**20 shots x records x samples; the random draws
-    depend on the seed and the batch only.
+    Same outputs as :func:`~chirplidar.tiers.rf.simulate_rf`. Shots are processed in blocks of
+    at most 2**20 shots x records x samples; the random draws depend on the seed and the batch
+    only.
     """
+    BASEBAND_SUPPORTS.check("baseband", config, returns)
     with single_threaded_blas():
-        return _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns)
+        return _simulate_baseband(config, returns, rng, keep_spectrum)
 
 
-def _simulate_baseband(config, rng, batch, keep_spectrum, echoes, shot_returns) -> dict:
-    if echoes is not None and not isinstance(echoes, Echoes):
-        raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
-                         f"got {type(echoes).__name__}")
-    check_supported(config)
-    bud = make_budget(config)
-    sim, proc, b = config.simulation, config.processing, config.balanced
-    fs, n = baseband_grid(config, bud)
-    k_avg = proc.averages
-    top = band_top_hz_or_nyquist(config, bud, fs)
-    t = np.arange(n) / fs
-    gate = bud.train.record_gate(t, sim.duration_s)
-    mode = config.system.coherent_mode
-    resp = responsivities(config, bud.nu_hz)
-    r = (resp["balanced_1"], resp["balanced_2"])
-    S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
-    cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]   # arm j: 2 Re(cross_j X)
-    s_lo = bud.lo_power_scale(b.lo_power_w)
-    s_sig = config.laser.power_w * bud.tx_gain * bud.h
+def _simulate_baseband(config, returns, rng, keep_spectrum) -> Measurements:
+    run = _BasebandRun(config, returns, rng, keep_spectrum)
+    blocks = [run.block(slice(s0, min(run.batch, s0 + run.block_shots)))
+              for s0 in range(0, run.batch, run.block_shots)]
+    if run.mode == "homodyne":
+        # The rf tier reads the amplifier's drive from the full-rate difference current; the
+        # baseband record lacks the sum-frequency terms, so take the bound the full-rate current
+        # reaches over a record of many chirp cycles: 2 |c| sqrt(P_lo P_sig) max|a_lo| max|a_sig|.
+        r = run.r
+        diff_peak = run.sat_peak * field_peak(config, run.bud) ** 2 / (0.5 * (r[0] + r[1]))
+        if diff_peak > config.balanced.saturation_power_w:
+            run.flags.append("saturation")
+    result, extra = concatenate_blocks(blocks)
+    return finish_outputs(config, run.bud, result, extra,
+                          run.circuit[0 if run.mode == "homodyne" else 1], run.flags, returns,
+                          tier="baseband", nyquist_hz=run.top,
+                          delay_offset_s=None if returns.echoes is None
+                          else echo_mean_offset_s((run.offsets, run.weights)))
 
-    returns = channel_returns(config, batch, rng)   # enabled effects, on their own streams
-    if shot_returns is not None:
-        returns = ShotReturns(power_factor=returns.power_factor * shot_returns.power_factor,
-                              phase_rad=returns.phase_rad + shot_returns.phase_rad,
-                              doppler_hz=returns.doppler_hz + shot_returns.doppler_hz)
-    flags = detection_flags(config, bud, returns, nyquist_hz=top)
-    if bud.f_beat_hz > top and "beat_out_of_band" not in flags:
-        flags.append("beat_out_of_band")   # above the simulated band: it would alias
-    cp = config.channel.carrier_phase
-    if cp == "random":
-        psi = rng.uniform(0.0, 2 * np.pi, (batch, k_avg, 1))
-    elif cp == "propagation":
-        psi = np.full((batch, 1, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
-    else:
-        psi = np.full((batch, 1, 1), optimal_phase(mode))
-    psi = psi + returns.phase_rad.reshape(batch, 1, 1)
-    amp = np.sqrt(s_lo * s_sig * returns.power_factor).reshape(batch, 1, 1)
-    doppler = returns.doppler_hz.reshape(batch, 1, 1)
-    lw = config.laser.linewidth_hz
-    pn_rng = effect_rng(rng, "phase_noise") if lw > 0 else None
 
-    if echoes is None:
-        offsets, weights, phases = np.zeros((batch, 1)), np.ones((batch, 1)), np.zeros((batch, 1))
-    else:
-        offsets, weights, phases = echoes.for_batch(batch)
-    delays = bud.delay_s + offsets
-    if bud.quantized:
-        q = 1.0 / (sim.sample_rate_hz * sim.upsample_factor)
-        delays = np.round(delays / q) * q
-    shared = bool(np.all(delays == delays[:1]))
-    max_lag = float(np.max(np.mod(delays - bud.ref_delay_s, bud.train.period_s)))
-    product = None if shared else _Product(config, bud, t, top, max_lag)
+class _BasebandRun:
+    """One batch through the baseband chain: the batch's set-up, then :meth:`block` by block
+    (each block simulated and analysed before the next: memory is bounded by the block)."""
 
-    ase_current = []
-    if bud.ase_psd_w_per_hz > 0:
-        # LO x ASE beat: one-sided current PSD 4 |c|^2 P_lo(t) h S_ASE, written as the equivalent
-        # shot-noise current PSD / (2 q) so that it follows the LO's slow power like the shot noise.
-        c_noise = [cross[0] - cross[1]] if mode == "homodyne" else cross
-        ase_current = [4 * abs(c) ** 2 * bud.h * bud.ase_psd_w_per_hz / (2 * ELEMENTARY_CHARGE_C)
-                       for c in c_noise]
+    def __init__(self, config: Instrument, returns: Returns, rng: np.random.Generator,
+                 keep_spectrum: bool):
+        self.config, self.returns, self.rng = config, returns, rng
+        self.batch = returns.batch
+        self.bud = bud = make_budget(config, returns)
+        b = config.balanced
+        self.fs, self.n = baseband_grid(config, float(np.max(np.abs(returns.doppler_hz))))
+        self.k_avg = config.processing.averages
+        self.top = band_top_hz_or_nyquist(config, self.fs)
+        self.t = np.arange(self.n) / self.fs
+        self.gate = bud.train.record_gate(self.t, config.simulation.duration_s)
+        self.mode = mode = config.system.coherent_mode
+        resp = responsivities(config, bud.nu_hz)
+        self.r = r = (resp["balanced_1"], resp["balanced_2"])
+        self.S = S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
+        self.cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]   # arm j: 2 Re(cross_j X)
+        self.s_lo = bud.lo_power_scale(b.lo_power_w)
+        self.s_sig = config.laser.power_w * bud.tx_gain * bud.h
+        self.flags = detection_flags(config, bud, returns, nyquist_hz=self.top)
+        if bud.f_beat_hz > self.top and "beat_out_of_band" not in self.flags:
+            self.flags.append("beat_out_of_band")   # above the simulated band: it would alias
+        self._phases(rng)
+        self._footprint_delays()
+        self._blocks(keep_spectrum)
 
-    per_record = (k_avg if (cp == "random" or lw > 0) else 1)
-    coherent_avg = proc.averaging == "coherent"
-    # Records per shot in the block's largest arrays: K signals, or K noisy records to power-average.
-    rows = k_avg if (per_record > 1 or not coherent_avg) else 1
-    block = max(1, _BLOCK_ELEMENTS // (rows * n * max(1, offsets.shape[1])))
-    # The noisy records and their FFT in the configured precision (phases above are float64).
-    dtype = np.float32 if sim.baseband_precision == "single" else np.float64
-    # Power averages drawn directly: the same signal in every record, stationary white noise
-    # (a constant chirp envelope keeps the LO power and so the shot noise constant), native bins.
-    direct = (DIRECT_POWER_AVERAGE and not coherent_avg and k_avg > 1 and per_record == 1
-              and mode == "homodyne" and proc.zero_pad_factor == 1 and proc.peak_method != "dtft"
-              and bool(gate.all()) and bool(np.all(bud.train.envelope_samples() == 1.0)))
-    dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
-    # Each block is simulated and analysed before the next: memory is bounded by the block. Its
-    # noisy records are written in place into buffers reused from block to block.
-    rec_shape = (min(block, batch), 1 if coherent_avg else k_avg, n)
-    bufs = [np.empty(rec_shape, dtype) for _ in range(1 if mode == "homodyne" else 2)]
-    search_max = min(peak_search_max_hz(config, bud), top)
-    analysis = partial(analyze_block, config, load_ohm=b.output_impedance_ohm, flags=flags,
-                       fs_hz=fs, transfer=single_pole(b.bandwidth_hz), search_max_hz=search_max,
-                       keep_spectrum=keep_spectrum)
-    blocks = []
-    mean_p = circuit = None
-    sat_peak = 0.0
-    doppler_on = bool(np.any(doppler != 0))
-    z_gate = b.transimpedance_ohm * (gate if not gate.all() else 1.0)
-    # Shot-noise terms whose variance is below 1e-6 of the dark and circuit floor are dropped
-    # (the received signal's own shot noise against a mW LO): the noise level moves < 5e-6 dB.
-    nz0 = balanced_noise(config, r[0], r[1], 0.0, 0.0)
-    noise_floor = 1e-6 * (2 * dark + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C)
-    def _footprint(sl):
+    def _phases(self, rng: np.random.Generator) -> None:
+        """The static carrier phase psi per record (drawn first), the shots' amplitudes, Doppler
+        and the phase-noise stream."""
+        config, returns, bud, batch = self.config, self.returns, self.bud, self.batch
+        cp = returns.carrier_phase
+        if cp == "random":
+            psi = rng.uniform(0.0, 2 * np.pi, (batch, self.k_avg, 1))
+        elif cp == "propagation":
+            psi = np.full((batch, 1, 1),
+                          -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+        else:
+            psi = np.full((batch, 1, 1), optimal_phase(self.mode))
+        self.psi = psi + returns.phase_rad.reshape(batch, 1, 1)
+        self.amp = np.sqrt(self.s_lo * self.s_sig * returns.power_factor).reshape(batch, 1, 1)
+        self.doppler = returns.doppler_hz.reshape(batch, 1, 1)
+        self.doppler_on = bool(np.any(self.doppler != 0))
+        self.lw = config.laser.linewidth_hz
+        self.pn_rng = child_stream(rng, "effect.phase_noise") if self.lw > 0 else None
+
+    def _footprint_delays(self) -> None:
+        """The echoes' delays (quantized like the rf tier's upsampled grid) and the product
+        they share, or the per-shot product."""
+        config, bud, sim = self.config, self.bud, self.config.simulation
+        if self.returns.echoes is None:
+            shape = (self.batch, 1)
+            self.offsets, self.weights, self.phases = np.zeros(shape), np.ones(shape), np.zeros(shape)
+        else:
+            self.offsets, self.weights, self.phases = self.returns.echo_arrays()
+        delays = bud.delay_s + self.offsets
+        if bud.quantized:
+            q = 1.0 / (sim.sample_rate_hz * sim.upsample_factor)
+            delays = np.round(delays / q) * q
+        self.delays = delays
+        self.shared = bool(np.all(delays == delays[:1]))
+        max_lag = float(np.max(np.mod(delays - bud.ref_delay_s, bud.train.period_s)))
+        self.product = (None if self.shared
+                        else _Product(config, bud.ref_delay_s, self.t, self.top, max_lag))
+
+    def _blocks(self, keep_spectrum: bool) -> None:
+        """Block size, record buffers, noise terms and the analysis of a block."""
+        config, bud, proc, b = self.config, self.bud, self.config.processing, self.config.balanced
+        self.ase_current = []
+        if bud.ase_psd_w_per_hz > 0:
+            # LO x ASE beat: one-sided current PSD 4 |c|^2 P_lo(t) h S_ASE, written as the
+            # equivalent shot-noise current PSD / (2 q) so that it follows the LO's slow power
+            # like the shot noise.
+            cross = self.cross
+            c_noise = [cross[0] - cross[1]] if self.mode == "homodyne" else cross
+            self.ase_current = [4 * abs(c) ** 2 * bud.h * bud.ase_psd_w_per_hz
+                                / (2 * ELEMENTARY_CHARGE_C) for c in c_noise]
+        k_avg, n = self.k_avg, self.n
+        per_record = (k_avg if (self.returns.carrier_phase == "random" or self.lw > 0) else 1)
+        self.coherent_avg = proc.averaging == "coherent"
+        # Records per shot in the block's largest arrays: K signals, or K noisy records to
+        # power-average.
+        rows = k_avg if (per_record > 1 or not self.coherent_avg) else 1
+        self.block_shots = max(1, _BLOCK_ELEMENTS // (rows * n * max(1, self.offsets.shape[1])))
+        # The noisy records and their FFT in the configured precision (phases are float64).
+        self.dtype = np.float32 if config.simulation.baseband_precision == "single" else np.float64
+        # Power averages drawn directly: the same signal in every record, stationary white noise
+        # (a constant chirp envelope keeps the LO power and so the shot noise constant), native
+        # bins.
+        self.direct = (DIRECT_POWER_AVERAGE and not self.coherent_avg and k_avg > 1
+                       and per_record == 1 and self.mode == "homodyne"
+                       and proc.zero_pad_factor == 1 and proc.peak_method != "dtft"
+                       and bool(self.gate.all())
+                       and bool(np.all(bud.train.envelope_samples() == 1.0)))
+        self.dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
+        # Noisy records are written in place into buffers reused from block to block.
+        rec_shape = (min(self.block_shots, self.batch), 1 if self.coherent_avg else k_avg, n)
+        self.bufs = [np.empty(rec_shape, self.dtype)
+                     for _ in range(1 if self.mode == "homodyne" else 2)]
+        self.analysis = partial(
+            analyze_block, config, load_ohm=b.output_impedance_ohm, flags=self.flags,
+            fs_hz=self.fs, transfer=single_pole(b.bandwidth_hz),
+            search_max_hz=min(peak_search_max_hz(config, bud), self.top),
+            keep_spectrum=keep_spectrum)
+        self.mean_p = self.circuit = None
+        self.sat_peak = 0.0
+        self.z_gate = b.transimpedance_ohm * (self.gate if not self.gate.all() else 1.0)
+        # Shot-noise terms whose variance is below 1e-6 of the dark and circuit floor are dropped
+        # (the received signal's own shot noise against a mW LO): the noise level moves < 5e-6 dB.
+        nz0 = balanced_noise(config, self.r[0], self.r[1], 0.0, 0.0)
+        self.noise_floor = 1e-6 * (2 * self.dark
+                                   + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C)
+
+    def footprint(self, sl: slice):
         """Complex low-pass product C = sum_k sqrt(w_k) exp(-j phi_k) [a_lo a_k]_low (m, 1, N),
         the signal's slow power sum_k w_k <a_k^2> (m, 1, N) and the LO's (N,), for a block."""
-        k = offsets.shape[1]
-        if shared:
-            parts = [_shared_beat(config, float(delays[0, kk]), fs, n) for kk in range(k)]
+        k = self.offsets.shape[1]
+        weights, phases = self.weights, self.phases
+        if self.shared:
+            parts = [_shared_beat(self.config, self.bud.ref_delay_s, self.bud.lag_s,
+                                  float(self.delays[0, kk]), self.fs, self.n) for kk in range(k)]
             p_lo = parts[0][2]
             if k == 1 and not np.any(phases[sl]):
                 return parts[0][0][None, None, :], parts[0][1][None, None, :], p_lo
             beats = [(parts[kk][0], parts[kk][1]) for kk in range(k)]
         else:
-            p_lo = product.power_lo
-            beats = [product.beat(delays[sl, kk, None]) for kk in range(k)]
+            p_lo = self.product.power_lo
+            beats = [self.product.beat(self.delays[sl, kk, None]) for kk in range(k)]
         C, p_sig = 0.0, 0.0
         for kk, (bk, pk) in enumerate(beats):
             C = C + np.sqrt(weights[sl, kk, None]) * np.exp(-1j * phases[sl, kk, None]) * bk
             p_sig = p_sig + weights[sl, kk, None] * pk
         return C[:, None, :], p_sig[:, None, :], p_lo
 
-    for s0 in range(0, batch, block):
-        sl = slice(s0, min(batch, s0 + block))
-        m = sl.stop - sl.start
-        C, p_sig, p_lo = _footprint(sl)
-        # Optical phase of E_lo E_sig*: laser phase noise, carrier phase, Doppler.
-        theta = -psi[sl]
-        if doppler_on:
-            theta = theta - 2 * np.pi * doppler[sl] * t
-        if lw > 0:
-            th_lo, th_sig = (x.reshape(m, k_avg, n) for x in wiener_phase(
-                [t - bud.ref_delay_s, t - bud.delay_s], lw, pn_rng, m * k_avg))
-            theta = theta + th_lo - th_sig
-        sig_scale = s_sig * returns.power_factor[sl, None, None]         # (m, 1, 1)
-        if mean_p is None:   # the arms' mean optical powers (the detector's operating point)
-            mean_sig = float(np.mean(sig_scale * np.mean(p_sig, axis=-1, keepdims=True)))
-            mean_p = [float(abs(S[j, 0]) ** 2 * s_lo * np.mean(p_lo) + abs(S[j, 1]) ** 2 * mean_sig)
-                      for j in (0, 1)]
-            circuit = [balanced_noise(config, r[0], r[1], *mean_p, arm=a) for a in (None, 0, 1)]
-        outer = (not (np.iscomplexobj(C) or theta.shape[-1] > 1)
-                 and C.shape[0] == p_sig.shape[0] == 1)
-        if outer:
-            # One real product for every shot and a constant phase per record: each current is
-            # per-record coefficients times three functions of time, i.e. one matrix product.
-            rot = amp[sl] * np.exp(1j * theta)                  # (m, 1 or K, 1)
-            peak = float(np.max(np.abs(rot))) * float(np.max(np.abs(C)))
-        else:
-            X = amp[sl] * C * np.exp(1j * theta)                 # E_lo E_sig*, (m, 1 or K, N)
-            peak = float(np.max(np.abs(X)))
-        sig_peak = float(np.max(sig_scale)) * float(np.max(p_sig))
-        # Shots of equal received power and one shared product: their direct terms are one
-        # function of time, so the noise's standard deviation is computed once, not per shot.
-        sig_common = (float(sig_scale.flat[0]) if p_sig.shape[0] == 1
-                      and np.all(sig_scale == sig_scale.flat[0]) else None)
-
-        def current(signs, c, floor=None, gain=1.0):
-            """``gain`` x sum_j signs_j i_j(t): the arms' direct-detection terms plus
-            2 Re(c E_lo E_sig*), (N,), (m, 1 or K, N) or, for one shared product, a
-            :class:`_LowRank` of the per-record coefficients and the functions of time; terms
-            whose largest current is below ``floor`` (A) are left out (see the noise floor)."""
-            a_lo, a_sig = _arm_coefficients(r, S, signs, sig_peak, floor)
-            if floor is not None and 2 * abs(c) * peak <= floor:
-                c = 0.0
-            lo = (a_lo * s_lo) * p_lo * gain
-            if c == 0 and (a_sig == 0 or sig_common is not None):   # the same for every shot
-                return lo if a_sig == 0 else lo + (a_sig * sig_common) * p_sig[0, 0] * gain
-            if not outer:
-                out = lo if a_sig == 0 else lo + (a_sig * sig_scale) * (p_sig * gain)
-                return out if c == 0 else out + 2.0 * np.real(c * X) * gain
-            coef = np.stack(np.broadcast_arrays(
-                np.ones(rot.shape), a_sig * sig_scale * np.ones(rot.shape), 2.0 * np.real(c * rot)),
-                axis=-1)[:, :, 0, :]                                      # (m, 1 or K, 3)
-            fns = np.stack([np.broadcast_to(lo, (n,)), a_sig * p_sig[0, 0] * gain,
-                            C[0, 0] * gain])                              # (3, N)
-            return _LowRank(coef, fns)
-
-        shape = (m, 1 if coherent_avg else k_avg, n)
-        if mode == "homodyne":
-            # i1 - i2 and i1 + i2 from the arms' self terms and cross terms.
-            sat_peak = max(sat_peak, float(np.max(amp[sl])) * 2 * abs(cross[0] - cross[1]))
-            total = _dense(current((1, 1), cross[0] + cross[1], floor=noise_floor))
-            if ase_current:
-                total = total + ase_current[0] * p_lo
-            nz = circuit[0]
-            if direct:
-                # Noiseless records and each shot's noise variance per sample (V^2), drawn per bin.
-                tot = np.broadcast_to(total, (m, 1, n))[:, 0, 0]
-                var = current_noise_variance(tot, 2 * dark, nz.thermal + nz.amplifier, fs)
-                diff = current((1, -1), cross[0] - cross[1], gain=b.transimpedance_ohm)
-                blocks.append(analysis({"main": np.broadcast_to(_dense(diff), (m, 1, n))},
-                                       spectrum_analyzer=partial(
-                                           draw_power_average, averages=k_avg, rng=rng,
-                                           var_v2=b.transimpedance_ohm ** 2 * var)))
-            else:
-                diff = current((1, -1), cross[0] - cross[1], gain=z_gate)
-                _noisy(rng, diff, total, 2 * dark, nz.thermal + nz.amplifier, fs, shape,
-                       coherent_avg, k_avg, z_gate, dtype, out=bufs[0][:m])
-                blocks.append(analysis({"main": bufs[0][:m]}))
-        else:
+    def block(self, sl: slice):
+        """Simulate and analyse the shots ``sl``: :func:`analyze_block`'s result."""
+        cur = _BlockCurrents(self, sl)
+        m, k_avg, n, b = cur.m, self.k_avg, self.n, self.config.balanced
+        cross, fs, dark = self.cross, self.fs, self.dark
+        shape = (m, 1 if self.coherent_avg else k_avg, n)
+        if self.mode != "homodyne":
             for j in (0, 1):
                 one = tuple(1 if a == j else 0 for a in (0, 1))
-                total = _dense(current(one, cross[j]))    # an arm's own current: its noise
-                if ase_current:
-                    total = total + ase_current[j] * p_lo
-                nz = circuit[1 + j]
-                _noisy(rng, current(one, cross[j], gain=z_gate), total, dark,
-                       nz.thermal + nz.amplifier, fs, shape, coherent_avg, k_avg, z_gate, dtype,
-                       out=bufs[j][:m])
-            blocks.append(analysis({"arm1": bufs[0][:m], "arm2": bufs[1][:m]}))
-    if mode == "homodyne":
-        # The rf tier reads the amplifier's drive from the full-rate difference current; the
-        # baseband record lacks the sum-frequency terms, so take the bound the full-rate current
-        # reaches over a record of many chirp cycles: 2 |c| sqrt(P_lo P_sig) max|a_lo| max|a_sig|.
-        diff_peak = sat_peak * _field_peak(config, bud) ** 2 / (0.5 * (r[0] + r[1]))
-        if diff_peak > b.saturation_power_w:
-            flags.append("saturation")
-    result, extra = concatenate_blocks(blocks)
-    return finish_outputs(config, bud, result, extra, circuit[0 if mode == "homodyne" else 1],
-                          flags, returns, tier="baseband", nyquist_hz=top,
-                          delay_offset_s=None if echoes is None
-                          else echo_mean_offset_s((offsets, weights)))
+                total = _dense(cur.current(one, cross[j]))    # an arm's own current: its noise
+                if self.ase_current:
+                    total = total + self.ase_current[j] * cur.p_lo
+                nz = self.circuit[1 + j]
+                _noisy(self.rng, cur.current(one, cross[j], gain=self.z_gate), total, dark,
+                       nz.thermal + nz.amplifier, fs, shape, self.coherent_avg, k_avg,
+                       self.z_gate, self.dtype, out=self.bufs[j][:m])
+            return self.analysis({"arm1": self.bufs[0][:m], "arm2": self.bufs[1][:m]})
+        # i1 - i2 and i1 + i2 from the arms' self terms and cross terms.
+        self.sat_peak = max(self.sat_peak,
+                            float(np.max(self.amp[sl])) * 2 * abs(cross[0] - cross[1]))
+        total = _dense(cur.current((1, 1), cross[0] + cross[1], floor=self.noise_floor))
+        if self.ase_current:
+            total = total + self.ase_current[0] * cur.p_lo
+        nz = self.circuit[0]
+        if self.direct:
+            # Noiseless records and each shot's noise variance per sample (V^2), drawn per bin.
+            tot = np.broadcast_to(total, (m, 1, n))[:, 0, 0]
+            var = current_noise_variance(tot, 2 * dark, nz.thermal + nz.amplifier, fs)
+            diff = cur.current((1, -1), cross[0] - cross[1], gain=b.transimpedance_ohm)
+            return self.analysis({"main": np.broadcast_to(_dense(diff), (m, 1, n))},
+                                 spectrum_analyzer=partial(
+                                     draw_power_average, averages=k_avg, rng=self.rng,
+                                     var_v2=b.transimpedance_ohm ** 2 * var))
+        diff = cur.current((1, -1), cross[0] - cross[1], gain=self.z_gate)
+        _noisy(self.rng, diff, total, 2 * dark, nz.thermal + nz.amplifier, fs, shape,
+               self.coherent_avg, k_avg, self.z_gate, self.dtype, out=self.bufs[0][:m])
+        return self.analysis({"main": self.bufs[0][:m]})
+
+
+class _BlockCurrents:
+    """A block's optical product, phases and the arms' photocurrents (:meth:`current`)."""
+
+    def __init__(self, run: _BasebandRun, sl: slice):
+        self.run = run
+        self.m = m = sl.stop - sl.start
+        C, p_sig, p_lo = run.footprint(sl)
+        self.C, self.p_sig, self.p_lo = C, p_sig, p_lo
+        # Optical phase of E_lo E_sig*: laser phase noise, carrier phase, Doppler.
+        theta = -run.psi[sl]
+        if run.doppler_on:
+            theta = theta - 2 * np.pi * run.doppler[sl] * run.t
+        if run.lw > 0:
+            bud = run.bud
+            th_lo, th_sig = (x.reshape(m, run.k_avg, run.n) for x in wiener_phase(
+                [run.t - bud.ref_delay_s, run.t - bud.delay_s], run.lw, run.pn_rng,
+                m * run.k_avg))
+            theta = theta + th_lo - th_sig
+        self.sig_scale = sig_scale = run.s_sig * run.returns.power_factor[sl, None, None]
+        if run.mean_p is None:   # the arms' mean optical powers (the detector's operating point)
+            S, r = run.S, run.r
+            mean_sig = float(np.mean(sig_scale * np.mean(p_sig, axis=-1, keepdims=True)))
+            run.mean_p = [float(abs(S[j, 0]) ** 2 * run.s_lo * np.mean(p_lo)
+                                + abs(S[j, 1]) ** 2 * mean_sig) for j in (0, 1)]
+            run.circuit = [balanced_noise(run.config, r[0], r[1], *run.mean_p, arm=a)
+                           for a in (None, 0, 1)]
+        self.outer = (not (np.iscomplexobj(C) or theta.shape[-1] > 1)
+                      and C.shape[0] == p_sig.shape[0] == 1)
+        if self.outer:
+            # One real product for every shot and a constant phase per record: each current is
+            # per-record coefficients times three functions of time, i.e. one matrix product.
+            self.rot = run.amp[sl] * np.exp(1j * theta)                  # (m, 1 or K, 1)
+            self.peak = float(np.max(np.abs(self.rot))) * float(np.max(np.abs(C)))
+        else:
+            self.X = run.amp[sl] * C * np.exp(1j * theta)                 # E_lo E_sig*
+            self.peak = float(np.max(np.abs(self.X)))
+        self.sig_peak = float(np.max(sig_scale)) * float(np.max(p_sig))
+        # Shots of equal received power and one shared product: their direct terms are one
+        # function of time, so the noise's standard deviation is computed once, not per shot.
+        self.sig_common = (float(sig_scale.flat[0]) if p_sig.shape[0] == 1
+                           and np.all(sig_scale == sig_scale.flat[0]) else None)
+
+    def current(self, signs, c, floor=None, gain=1.0):
+        """``gain`` x sum_j signs_j i_j(t): the arms' direct-detection terms plus
+        2 Re(c E_lo E_sig*), (N,), (m, 1 or K, N) or, for one shared product, a
+        :class:`_LowRank` of the per-record coefficients and the functions of time; terms
+        whose largest current is below ``floor`` (A) are left out (see the noise floor)."""
+        run, p_sig, sig_scale = self.run, self.p_sig, self.sig_scale
+        a_lo, a_sig = _arm_coefficients(run.r, run.S, signs, self.sig_peak, floor)
+        if floor is not None and 2 * abs(c) * self.peak <= floor:
+            c = 0.0
+        lo = (a_lo * run.s_lo) * self.p_lo * gain
+        if c == 0 and (a_sig == 0 or self.sig_common is not None):   # the same for every shot
+            return lo if a_sig == 0 else lo + (a_sig * self.sig_common) * p_sig[0, 0] * gain
+        if not self.outer:
+            out = lo if a_sig == 0 else lo + (a_sig * sig_scale) * (p_sig * gain)
+            return out if c == 0 else out + 2.0 * np.real(c * self.X) * gain
+        rot = self.rot
+        coef = np.stack(np.broadcast_arrays(
+            np.ones(rot.shape), a_sig * sig_scale * np.ones(rot.shape), 2.0 * np.real(c * rot)),
+            axis=-1)[:, :, 0, :]                                      # (m, 1 or K, 3)
+        fns = np.stack([np.broadcast_to(lo, (run.n,)), a_sig * p_sig[0, 0] * gain,
+                        self.C[0, 0] * gain])                          # (3, N)
+        return _LowRank(coef, fns)
 
 
 def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, var_v2: np.ndarray,
@@ -472,7 +498,7 @@ def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, v
     return analyze_spectrum(psd, fs_hz, n, zero_pad=1, **kw)
 
 
-def _field_peak(config, bud) -> float:
+def field_peak(config: Instrument, bud) -> float:
     """max |cos(alpha + beta w sin phi)| over the drive: 1 if alpha +- beta spans a peak of |cos|."""
     alpha, beta = mzm_drive_angles(bud.train, config.modulator.bias_v, config.modulator.v_pi_v)
     lo, hi = alpha - abs(beta), alpha + abs(beta)

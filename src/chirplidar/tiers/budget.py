@@ -1,6 +1,6 @@
 """Deterministic quantities shared by every tier: powers, delays, beat frequency, scales.
 
-Computed once per configuration, so the rf and link tiers cannot disagree on them.
+Computed once per (instrument, returns), so the tiers cannot disagree on them.
 """
 
 from __future__ import annotations
@@ -9,11 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config.models import IF_HALF_WIDTH_FACTOR
-from ..channel.bench import power_transmission, round_trip_delay_s
 from ..transmitter.mzm import mzm_mean_power_transmission
 from ..units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, responsivity_a_per_w
-from ..waveform import waveform_from_config
+from .model import Instrument, Returns
+
+#: The heterodyne IF band-pass half-width as a multiple of the chirp's top frequency.
+IF_HALF_WIDTH_FACTOR = 1.25
 
 
 @dataclass(frozen=True)
@@ -50,10 +51,11 @@ class Budget:
         return SPEED_OF_LIGHT_M_S * (np.asarray(lag_s) + self.ref_delay_s) / (2.0 * self.group_index)
 
 
-def reference_delay_s(config, delay_s, rate_hz_per_s: float):
+def reference_delay_s(instrument: Instrument, delay_s, rate_hz_per_s: float):
     """Reference delay: explicit, or the ``sys.fmaxopt`` rule (delay the reference until the beat
     falls to ``max_beat_frequency_hz``; zero when it already does). ``delay_s`` may be an array
     (one per shot: the rule then tracks each shot's range, as a range-gate tracker would)."""
+    config = instrument
     if config.system.reference_delay_s is not None:
         return np.full(np.shape(delay_s), config.system.reference_delay_s)[()]
     if config.system.modulation == "pn_code":
@@ -62,8 +64,11 @@ def reference_delay_s(config, delay_s, rate_hz_per_s: float):
     return np.maximum(0.0, np.asarray(delay_s, float) - f_max / rate_hz_per_s)[()]
 
 
-def make_budget(config) -> Budget:
-    train = waveform_from_config(config)
+def make_budget(instrument: Instrument, returns: Returns) -> Budget:
+    """The budget of ``instrument`` on the mean return of ``returns`` (its transmission, delay
+    and group index; the range gate ``returns.reference_delay_s`` when a tracker set one)."""
+    config = instrument
+    train = instrument.train
     nu = SPEED_OF_LIGHT_M_S / config.laser.wavelength_m
     m2 = mzm_mean_power_transmission(train, config.modulator.bias_v, config.modulator.v_pi_v)
     ri = config.modulator.input_impedance_ohm
@@ -78,10 +83,11 @@ def make_budget(config) -> Budget:
         ase = max(f_noise * g - 1.0, 0.0) * PLANCK_J_S * nu / 2.0
         gain *= g
     ptx = config.laser.power_w * m2 * gain
-    h = power_transmission(config)
-    delay = round_trip_delay_s(config)
+    h = returns.transmission
+    delay = returns.delay_s
     rate = train.rate_hz_per_s if hasattr(train, "rate_hz_per_s") else 0.0
-    ref = float(reference_delay_s(config, delay, rate if rate else 1.0))
+    ref = (float(returns.reference_delay_s) if returns.reference_delay_s is not None
+           else float(reference_delay_s(instrument, delay, rate if rate else 1.0)))
     quantized = config.simulation.delay_method == "resample"
     if quantized:
         q = 1.0 / (config.simulation.sample_rate_hz * config.simulation.upsample_factor)
@@ -90,10 +96,10 @@ def make_budget(config) -> Budget:
     return Budget(train=train, nu_hz=nu, mzm_mean_transmission=m2, pchrp_w=pchrp, tx_gain=gain,
                   ptx_w=ptx, ase_psd_w_per_hz=ase, h=h, psig_w=ptx * h, delay_s=delay,
                   ref_delay_s=ref, lag_s=lag, f_beat_hz=rate * lag, rate_hz_per_s=rate,
-                  group_index=config.channel.group_index, quantized=quantized)
+                  group_index=returns.group_index, quantized=quantized)
 
 
-def responsivities(config, nu_hz: float) -> dict[str, float]:
+def responsivities(config: Instrument, nu_hz: float) -> dict[str, float]:
     lam = SPEED_OF_LIGHT_M_S / nu_hz
     return {
         "balanced_1": responsivity_a_per_w(config.balanced.quantum_efficiency_1, lam),
@@ -104,11 +110,11 @@ def responsivities(config, nu_hz: float) -> dict[str, float]:
     }
 
 
-def coupler_field_transmission(config) -> float:
+def coupler_field_transmission(config: Instrument) -> float:
     """Field factor of the receiver coupler's excess loss (applies to LO and signal alike)."""
     return float(np.sqrt(db_to_ratio(-config.balanced.coupler_excess_loss_db)))
 
 
-def if_half_width_hz(config, bud: Budget) -> float:
+def if_half_width_hz(config: Instrument, bud: Budget) -> float:
     """Half-width of the heterodyne IF band-pass around f_LO (the validated band)."""
     return IF_HALF_WIDTH_FACTOR * bud.train.f_stop_hz

@@ -12,6 +12,7 @@ from ..processing.spectrum import PeakResult, _parabolic
 from ..receiver import HYBRID_90
 from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from ..transmitter.mzm import mzm_harmonic_dominates
+from .model import Instrument, Measurements, Returns
 
 # Thesis Table 4.10: output names and units.
 OUTPUT_UNITS: dict[str, str] = {
@@ -73,7 +74,8 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     return np.where(down_in & (~up_in | coin), down, up)
 
 
-def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
+def detection_flags(config: Instrument, bud, returns: Returns | None = None, *,
+                    nyquist_hz=None) -> list[str]:
     """Flags of a batch from its budget: ``no_return`` (zero received power), ``no_lo`` (a
     coherent receiver with zero LO power: nothing to beat with), ``no_chirp`` (no drive voltage
     on the modulator: no chirp, so no beat), ``harmonic_beat`` (the modulator's bias puts more
@@ -95,12 +97,8 @@ def detection_flags(config, bud, returns=None, *, nyquist_hz=None) -> list[str]:
             bud.train, config.modulator.bias_v, config.modulator.v_pi_v,
             field=config.system.receiver == "coherent"):
         flags.append("harmonic_beat")
-    if "coupling" in config.effects.enabled:
-        c = config.effects.coupling
-        # Marginal ray of the focal cone against the fiber's acceptance (Sec. 2.6: d/f <= 0.2).
-        if np.sin(np.arctan(config.channel.telescope_diameter_m / (2 * c.focal_length_m))) \
-                > c.fiber_numerical_aperture:
-            flags.append("fiber_acceptance_exceeded")
+    if config.fiber is not None and config.fiber.exceeded:
+        flags.append("fiber_acceptance_exceeded")
     if returns is not None and np.any(np.abs(returns.doppler_hz) >= bud.f_beat_hz):
         # Appendix D: the line at f_R - f_d folds through zero; its sign is lost.
         flags.append("doppler_ambiguous")
@@ -224,13 +222,14 @@ def beat_flags(config, bud, lag_s, f_beat_hz):
     return no_overlap[()], out_of_band[()]
 
 
-def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=None, tier: str,
-                     lag_s=None, lag_lo_s=None, lag_hi_s=None, power_factor=None,
-                     nyquist_hz=None, delay_offset_s=None) -> dict:
+def assemble_outputs(config: Instrument, bud, result: PeakResult, noise, flags, *, range_m: float,
+                     extra=None, tier: str, lag_s=None, lag_lo_s=None, lag_hi_s=None,
+                     power_factor=None, nyquist_hz=None, delay_offset_s=None) -> Measurements:
     """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model.
 
-    ``power_factor`` (per shot) is what the channel's effects did to the received power (speckle):
-    Psig reports each shot's own received power. Shots whose beat the tier cannot read (no
+    ``range_m``: the true range ``d_error`` is measured against. ``power_factor`` (per shot) is
+    what the channel's effects did to the received power (speckle): Psig reports each shot's own
+    received power. Shots whose beat the tier cannot read (no
     signal, no LO, no chirp overlap, a beat outside the processed band or above ``nyquist_hz``,
     a range ambiguous by a chirp period: :func:`unmeasured_masks`, ``delay_offset_s`` the
     shots' mean echo offsets) report NaN (JSON null) for what is not measured, and their flags.
@@ -259,7 +258,7 @@ def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=Non
         "Nt": full(power_dbm(noise.output_psd_w_per_hz(noise.thermal))),
         "d_offset": full(bud.d_offset_m), "d_rx": np.asarray(d_rx, float),
         "d_lo": np.asarray(d_lo, float), "d_hi": np.asarray(d_hi, float),
-        "d_error": config.channel.distance_m - np.asarray(d_rx, float),
+        "d_error": range_m - np.asarray(d_rx, float),
         "d_3dB": np.asarray(d_hi, float) - np.asarray(d_lo, float), "d_res": d_res,
         # Zero received power: there is no signal to read, whatever the noise peak is.
         "Crx": np.full(n, -np.inf) if no_return else power_dbm(result.peak_power_w),
@@ -281,14 +280,13 @@ def assemble_outputs(config, bud, result: PeakResult, noise, flags, *, extra=Non
                              delay_offset_s=delay_offset_s, nyquist_hz=nyquist_hz)
     if any(np.any(m) for m in masks):
         out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
-    out["flags"] = list(flags)
-    out["tier"] = tier
+    spectrum = None
     if result.spectrum_f_hz is not None:
-        out["spectrum"] = {"f_hz": result.spectrum_f_hz, "psd_w_per_hz": result.spectrum_w_per_hz,
-                           "f_peak_hz": result.f_peak_hz, "f_lo_hz": result.f_lo_hz,
-                           "f_hi_hz": result.f_hi_hz, "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
-                           "rbw_hz": config.processing.rbw_hz}
-    return out
+        spectrum = {"f_hz": result.spectrum_f_hz, "psd_w_per_hz": result.spectrum_w_per_hz,
+                    "f_peak_hz": result.f_peak_hz, "f_lo_hz": result.f_lo_hz,
+                    "f_hi_hz": result.f_hi_hz, "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
+                    "rbw_hz": config.processing.rbw_hz}
+    return Measurements(tier, out, flags, spectrum)
 
 
 def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
@@ -399,17 +397,18 @@ def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResul
     return PeakResult(**fields), extra
 
 
-def finish_outputs(config, bud, result: PeakResult, extra: dict, noise, flags, returns, *,
-                   tier: str, nyquist_hz=None, delay_offset_s=None) -> dict:
+def finish_outputs(config: Instrument, bud, result: PeakResult, extra: dict, noise, flags,
+                   returns: Returns, *, tier: str, nyquist_hz=None,
+                   delay_offset_s=None) -> Measurements:
     """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds);
     ``nyquist_hz``, ``delay_offset_s``: see :func:`assemble_outputs`."""
     if config.system.modulation == "pn_code":
-        return assemble_outputs(config, bud, result, noise, flags, tier=tier, lag_s=result.f_peak_hz,
-                                lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz,
-                                power_factor=returns.power_factor)
-    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier=tier,
-                            power_factor=returns.power_factor, nyquist_hz=nyquist_hz,
-                            delay_offset_s=delay_offset_s)
+        return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
+                                tier=tier, lag_s=result.f_peak_hz, lag_lo_s=result.f_lo_hz,
+                                lag_hi_s=result.f_hi_hz, power_factor=returns.power_factor)
+    return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
+                            extra=extra, tier=tier, power_factor=returns.power_factor,
+                            nyquist_hz=nyquist_hz, delay_offset_s=delay_offset_s)
 
 
 def echo_mean_offset_s(echo_arrays):
@@ -422,10 +421,10 @@ def echo_mean_offset_s(echo_arrays):
     return np.sum(weights * offsets, axis=-1) / np.where(total > 0, total, 1.0)
 
 
-def process_records(config, bud, records: dict, noise, load_ohm: float, flags: list, returns, *,
-                    fs_hz: float, transfer, search_max_hz: float, keep_spectrum: bool, tier: str,
-                    extra: dict | None = None, pn_reference=None, spectrum_analyzer=None,
-                    nyquist_hz=None, delay_offset_s=None) -> dict:
+def process_records(config: Instrument, bud, records: dict, noise, load_ohm: float, flags: list,
+                    returns: Returns, *, fs_hz: float, transfer, search_max_hz: float,
+                    keep_spectrum: bool, tier: str, extra: dict | None = None, pn_reference=None,
+                    spectrum_analyzer=None, nyquist_hz=None, delay_offset_s=None) -> Measurements:
     """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
     further per-shot outputs to report)."""
     result, arms = analyze_block(config, records, load_ohm, flags, fs_hz=fs_hz, transfer=transfer,

@@ -28,11 +28,13 @@ from ..processing.spectrum import PeakResult
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
+from ..units import SPEED_OF_LIGHT_M_S
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
-from ..channel.effects import channel_returns
-from .baseband import _field_peak
+from .baseband import field_peak
 from .common import (assemble_outputs, detection_flags, doppler_line_hz, optimal_phase,
                      peak_search_max_hz)
+from .model import CarrierPhase, Instrument, Measurements, Returns
+from .registry import LINK_SUPPORTS
 
 _GRID = 8192  # points over the record for slowly varying envelopes
 
@@ -70,7 +72,8 @@ def crb_sigma_f_hz(snr, rbw_hz: float, duration_s):
 _FADING_BLOCK = 1 << 20  # shots x records per block of carrier-phase draws (8 MB per array)
 
 
-def carrier_fading_factor(config, rng: np.random.Generator, n: int) -> np.ndarray:
+def carrier_fading_factor(config: Instrument, carrier_phase: CarrierPhase,
+                          rng: np.random.Generator, n: int) -> np.ndarray:
     """(n,) per-shot factors, mean 1, on the link tier's SNR for a uniformly random carrier phase.
 
     The balanced pair reads 2 R Im(E_LO E_s*): a record's beat power goes as sin^2(psi) (thesis eq.
@@ -95,7 +98,7 @@ def carrier_fading_factor(config, rng: np.random.Generator, n: int) -> np.ndarra
     n = int(n)
     ones = np.ones(n)
     sysc, proc = config.system, config.processing
-    if (config.channel.carrier_phase != "random" or sysc.receiver != "coherent"
+    if (carrier_phase != "random" or sysc.receiver != "coherent"
             or sysc.coherent_mode not in ("homodyne", "phase_diversity") or n == 0):
         return ones
     k = int(proc.averages)
@@ -113,13 +116,12 @@ def carrier_fading_factor(config, rng: np.random.Generator, n: int) -> np.ndarra
             p2[sl] = 1.0 - p1[sl]
     if sysc.coherent_mode == "homodyne":
         return 2.0 * p1
-    bud = make_budget(config)
-    resp = responsivities(config, bud.nu_hz)
+    resp = responsivities(config, SPEED_OF_LIGHT_M_S / config.laser.wavelength_m)
     w1, w2 = resp["balanced_1"] ** 2, resp["balanced_2"] ** 2
     return (w1 * p1 + w2 * p2) / (0.5 * (w1 + w2))
 
 
-def static_phase_factor(config, psi_rad) -> np.ndarray:
+def static_phase_factor(config: Instrument, psi_rad) -> np.ndarray:
     """SNR at a static carrier phase ``psi_rad`` (signal relative to the LO, rad; array) over the
     SNR at :func:`~chirplidar.tiers.common.optimal_phase`, as :func:`simulate_link` weighs it.
 
@@ -140,14 +142,13 @@ def static_phase_factor(config, psi_rad) -> np.ndarray:
     if sysc.coherent_mode == "homodyne":
         return np.sin(psi) ** 2
     a = np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))
-    bud = make_budget(config)
-    resp = responsivities(config, bud.nu_hz)
+    resp = responsivities(config, SPEED_OF_LIGHT_M_S / config.laser.wavelength_m)
     w1, w2 = resp["balanced_1"] ** 2, resp["balanced_2"] ** 2
     p1 = np.cos(psi - a) ** 2
     return (w1 * p1 + w2 * (1.0 - p1)) / w1
 
 
-def overlap_duration_s(config, bud, lag_s, *, ref_delay_s: float = 0.0) -> np.ndarray:
+def overlap_duration_s(config: Instrument, bud, lag_s, *, ref_delay_s: float = 0.0) -> np.ndarray:
     """Time [s] within the record where the reference and signal chirps overlap (envelope product
     above 1/4, at least one grid step) at each lag ``lag_s`` = tau - tau_ref (array), the
     reference delayed by ``ref_delay_s``: the tone's duration T_ov."""
@@ -163,50 +164,27 @@ def overlap_duration_s(config, bud, lag_s, *, ref_delay_s: float = 0.0) -> np.nd
     return out.reshape(np.shape(lag_s))
 
 
-def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
-                  keep_spectrum: bool = False) -> dict:
-    bud = make_budget(config)
-    if config.system.modulation == "pn_code":
-        raise ValueError("the link tier models FM chirps only; use --tier rf for system.modulation = "
-                         "'pn_code' (sys.MxMode = PN)")
+def simulate_link(config: Instrument, returns: Returns, rng: np.random.Generator, *,
+                  keep_spectrum: bool = False) -> Measurements:
+    """The batch of ``returns`` through the closed-form link budget; arrays of shape (batch,)
+    (``keep_spectrum`` is accepted and ignored: the link tier draws no spectrum)."""
+    LINK_SUPPORTS.check("link", config, returns)
+    batch = returns.batch
+    bud = make_budget(config, returns)
     sim, proc = config.simulation, config.processing
-    if proc.doppler_recovery != "none":
-        raise ValueError("processing.doppler_recovery = 'squaring' is modelled in the rf tier only "
-                         "(use --tier rf): its noise penalty has no closed form here")
     train = bud.train
     t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
     gate = train.record_gate(t, sim.duration_s).astype(float)
-    w_lo = train.envelope(np.mod(t - bud.ref_delay_s, train.period_s))
     w_sig = train.envelope(np.mod(t - bud.delay_s, train.period_s))
-    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
-    c_lo = mzm_fundamental_field(train, bias, vpi, w_lo)
-    c_sig = mzm_fundamental_field(train, bias, vpi, w_sig)
     s_sig = config.laser.power_w * bud.tx_gain * bud.h
     resp = responsivities(config, bud.nu_hz)
-    rx = config.system.receiver
-    mode = config.system.coherent_mode if rx == "coherent" else "direct"
-    cp = config.channel.carrier_phase
-    returns = channel_returns(config, batch, rng)
+    mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
     nyquist = sim.sample_rate_hz / 2   # the rf chain this closed form stands for samples at Fs
     flags = detection_flags(config, bud, returns, nyquist_hz=nyquist)
     if config.laser.linewidth_hz > LINK_MAX_LINEWIDTH_HZ:
         flags.append("linewidth_beyond_link_tier")
     if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
         flags.append("saturation")
-    if cp == "random":
-        # The mean over a uniform phase; the per-shot fading is carrier_fading_factor.
-        phase_power = np.full(batch, 0.5)
-    else:
-        psi = (optimal_phase(mode) if cp == "optimal"
-               else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
-        # Each shot's static phase (plus a speckle phase when that effect is on): the balanced
-        # pair reads sin^2 (i1 - i2 = 2 R Im(E_LO E_s*)), hybrid arm 1 cos^2(psi - arg S00 S01*).
-        psi = psi + returns.phase_rad
-        if mode == "phase_diversity":
-            phase_power = np.cos(psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2
-        else:
-            phase_power = np.sin(psi) ** 2
-    f_b = bud.f_beat_hz
     # Overlap time of the two chirps: sets the resolution and the frequency scatter below.
     # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
     t_ov = float(overlap_duration_s(config, bud, bud.lag_s, ref_delay_s=bud.ref_delay_s))
@@ -214,65 +192,19 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     # f_R +- f_d of a quarter of the optimum-phase power each, whatever the carrier phase.
     f_d = np.abs(returns.doppler_hz)
     split = f_d >= 1.0 / t_ov
-    phase_power = np.where(split, 0.25, phase_power)
     extra = {}
-    coherence = 1.0
     if mode in ("homodyne", "phase_diversity"):
-        b = config.balanced
-        s_lo = bud.lo_power_scale(b.lo_power_w)
-        # Beat of the two fields' fundamentals: (1/2) c_lo c_sig cos(phi_lo - phi_sig).
-        env = 0.5 * c_lo * c_sig * gate * np.sqrt(s_lo * s_sig)
-        coherence = _coherence(env, t[1] - t[0], config.laser.linewidth_hz, bud.lag_s)
-        loss = coupler_field_transmission(config) ** 2
-        env = env * loss
-        S = COUPLER_3DB if mode == "homodyne" else HYBRID_90
-        mean_p = [loss * (abs(S[k, 0]) ** 2 * b.lo_power_w + abs(S[k, 1]) ** 2 * bud.psig_w)
-                  for k in (0, 1)]
-        h2 = abs(single_pole(b.bandwidth_hz)(f_b)) ** 2
-        if mode == "homodyne":
-            amp = (resp["balanced_1"] + resp["balanced_2"]) * np.mean(env)  # 2 R Im(E_LO E_s*)
-            tone = 0.5 * amp**2 * phase_power * coherence
-            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p)
-            snr = tone / (noise.total * proc.rbw_hz)
-        else:
-            k01 = 2 * abs(HYBRID_90[0, 0] * HYBRID_90[0, 1])
-            arm_snr, arm_tone = [], []
-            shares = ((0, np.where(split, 0.25, phase_power)), (1, np.where(split, 0.25, 1.0 - phase_power)))
-            for arm, share in shares:
-                r = (resp["balanced_1"], resp["balanced_2"])[arm]
-                tone_k = 0.5 * (r * k01 * np.mean(env)) ** 2 * share * coherence
-                nz = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=arm)
-                arm_tone.append(tone_k)
-                arm_snr.append(tone_k / (nz.total * proc.rbw_hz))
-            noise = balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p, arm=0)
-            # Summed arms, as the rf tier sums their spectra (thesis Fig. 5.13).
-            noise_psd = sum(balanced_noise(config, resp["balanced_1"], resp["balanced_2"], *mean_p,
-                                           arm=a).total for a in (0, 1))
-            tone = sum(arm_tone)
-            snr = tone / (noise_psd * proc.rbw_hz)
-            to_out = h2 * noise.gain_ohm**2 / noise.load_ohm
-            each = lambda v: np.broadcast_to(np.asarray(v, float), (batch,))  # noqa: E731
-            extra = {"arm1_Crx_w": each(arm_tone[0] * to_out), "arm2_Crx_w": each(arm_tone[1] * to_out),
-                     "arm1_snr": each(arm_snr[0]), "arm2_snr": each(arm_snr[1])}
-        if mode == "homodyne":
-            noise_psd = noise.total
-        if bud.ase_psd_w_per_hz > 0:
-            # Received ASE (two-sided PSD h S per complex envelope) beating with the LO through
-            # i1 - i2 = 2 R Im(E_LO n*): one-sided current PSD 4 R^2 <|E_LO|^2> h S. Modelled for
-            # the balanced pair only; the phase-diversity link leaves it out (README, known limits).
-            r_mean = 0.5 * (resp["balanced_1"] + resp["balanced_2"])
-            beat = 4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz
-            if mode == "homodyne":
-                noise = dataclasses.replace(noise, beat=beat)
-                noise_psd = noise.total
-                snr = tone / (noise_psd * proc.rbw_hz)
+        phase_power = np.where(split, 0.25, _phase_power(returns, bud, mode))
+        tone, noise, snr, noise_psd, h2, extra = _coherent_link(
+            config, bud, batch, mode, t, gate, w_sig, s_sig, resp, phase_power, split)
     else:
         # Direct and heterodyne chains filter before their nonlinearity or mixer: the detector
         # response is inside these closed forms, not applied at the beat frequency.
         h2 = 1.0
         chain = _heterodyne_link if mode == "heterodyne" else _direct_link
         tone, noise, snr, noise_psd = chain(config, bud, train, t, gate, w_sig, s_sig, resp)
-    if config.processing.averaging == "coherent" and cp != "random" and config.laser.linewidth_hz == 0:
+    if (proc.averaging == "coherent" and returns.carrier_phase != "random"
+            and config.laser.linewidth_hz == 0):
         snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
     # Speckle (or any effect on the received power) scales each shot's beat.
     tone = tone * returns.power_factor
@@ -282,8 +214,8 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
     sigma_f = crb_sigma_f_hz(snr, proc.rbw_hz, t_ov)
     extra = {**extra, "t_overlap_s": np.full(batch, t_ov)}
     noise_draw = rng.standard_normal(batch)
-    f_meas = doppler_line_hz(config, bud, np.full(batch, f_b), np.where(split, f_d, 0.0),
-                             rng) + sigma_f * noise_draw
+    f_meas = doppler_line_hz(config, bud, np.full(batch, bud.f_beat_hz),
+                             np.where(split, f_d, 0.0), rng) + sigma_f * noise_draw
     if config.system.modulation == "fm_chirp":
         f_meas = _noise_peak_outside_band(config, bud, f_meas, sigma_f, rng)
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
@@ -291,8 +223,76 @@ def simulate_link(config, rng: np.random.Generator, *, batch: int = 1,
                         noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
                         f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
                         snr=np.broadcast_to(np.asarray(snr, float), (batch,)))
-    return assemble_outputs(config, bud, result, noise, flags, extra=extra, tier="link",
-                            power_factor=returns.power_factor, nyquist_hz=nyquist)
+    return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
+                            extra=extra, tier="link", power_factor=returns.power_factor,
+                            nyquist_hz=nyquist)
+
+
+def _phase_power(returns: Returns, bud, mode: str):
+    """The beat power's carrier-phase factor of each shot: the mean 1/2 over a uniform phase
+    ("random"; the per-shot fading is :func:`carrier_fading_factor`), else of each shot's static
+    phase plus its speckle phase: the balanced pair reads sin^2 (i1 - i2 = 2 R Im(E_LO E_s*)),
+    hybrid arm 1 cos^2(psi - arg S00 S01*)."""
+    cp = returns.carrier_phase
+    if cp == "random":
+        return np.full(returns.batch, 0.5)
+    psi = (optimal_phase(mode) if cp == "optimal"
+           else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+    psi = psi + returns.phase_rad
+    if mode == "phase_diversity":
+        return np.cos(psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2
+    return np.sin(psi) ** 2
+
+
+def _coherent_link(config: Instrument, bud, batch: int, mode: str, t, gate, w_sig, s_sig, resp,
+                   phase_power, split):
+    """The self-chirped coherent receivers' closed form: (tone, noise, SNR, noise PSD,
+    |H(f_beat)|^2, extra outputs of the phase-diversity arms). ``split``: the shots whose
+    Doppler shift the record resolves (each arm then holds a quarter of the power)."""
+    b, proc, train = config.balanced, config.processing, bud.train
+    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
+    c_lo = mzm_fundamental_field(train, bias, vpi,
+                                 train.envelope(np.mod(t - bud.ref_delay_s, train.period_s)))
+    c_sig = mzm_fundamental_field(train, bias, vpi, w_sig)
+    s_lo = bud.lo_power_scale(b.lo_power_w)
+    # Beat of the two fields' fundamentals: (1/2) c_lo c_sig cos(phi_lo - phi_sig).
+    env = 0.5 * c_lo * c_sig * gate * np.sqrt(s_lo * s_sig)
+    coherence = _coherence(env, t[1] - t[0], config.laser.linewidth_hz, bud.lag_s)
+    loss = coupler_field_transmission(config) ** 2
+    env = env * loss
+    S = COUPLER_3DB if mode == "homodyne" else HYBRID_90
+    mean_p = [loss * (abs(S[k, 0]) ** 2 * b.lo_power_w + abs(S[k, 1]) ** 2 * bud.psig_w)
+              for k in (0, 1)]
+    h2 = abs(single_pole(b.bandwidth_hz)(bud.f_beat_hz)) ** 2
+    r1, r2 = resp["balanced_1"], resp["balanced_2"]
+    if mode == "homodyne":
+        amp = (r1 + r2) * np.mean(env)  # 2 R Im(E_LO E_s*)
+        tone = 0.5 * amp**2 * phase_power * coherence
+        noise = balanced_noise(config, r1, r2, *mean_p)
+        if bud.ase_psd_w_per_hz > 0:
+            # Received ASE (two-sided PSD h S per complex envelope) beating with the LO through
+            # i1 - i2 = 2 R Im(E_LO n*): one-sided current PSD 4 R^2 <|E_LO|^2> h S. Modelled for
+            # the balanced pair only; the phase-diversity link leaves it out (known limits).
+            r_mean = 0.5 * (r1 + r2)
+            noise = dataclasses.replace(
+                noise, beat=4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz)
+        return tone, noise, tone / (noise.total * proc.rbw_hz), noise.total, h2, {}
+    k01 = 2 * abs(HYBRID_90[0, 0] * HYBRID_90[0, 1])
+    arm_snr, arm_tone = [], []
+    for arm, share in ((0, phase_power), (1, np.where(split, 0.25, 1.0 - phase_power))):
+        tone_k = 0.5 * ((r1, r2)[arm] * k01 * np.mean(env)) ** 2 * share * coherence
+        nz = balanced_noise(config, r1, r2, *mean_p, arm=arm)
+        arm_tone.append(tone_k)
+        arm_snr.append(tone_k / (nz.total * proc.rbw_hz))
+    noise = balanced_noise(config, r1, r2, *mean_p, arm=0)
+    # Summed arms, as the rf tier sums their spectra (thesis Fig. 5.13).
+    noise_psd = sum(balanced_noise(config, r1, r2, *mean_p, arm=a).total for a in (0, 1))
+    tone = sum(arm_tone)
+    to_out = h2 * noise.gain_ohm**2 / noise.load_ohm
+    each = lambda v: np.broadcast_to(np.asarray(v, float), (batch,))  # noqa: E731
+    extra = {"arm1_Crx_w": each(arm_tone[0] * to_out), "arm2_Crx_w": each(arm_tone[1] * to_out),
+             "arm1_snr": each(arm_snr[0]), "arm2_snr": each(arm_snr[1])}
+    return tone, noise, tone / (noise_psd * proc.rbw_hz), noise_psd, h2, extra
 
 
 def _noise_peak_outside_band(config, bud, f_meas, sigma_f, rng: np.random.Generator):
@@ -323,7 +323,7 @@ def _saturates(config, bud, s_sig: float, resp: dict, power_factor) -> bool:
     s_lo = bud.lo_power_scale(b.lo_power_w)
     pf = float(np.max(power_factor)) if np.size(power_factor) else 0.0
     amp = np.sqrt(s_lo * s_sig * max(pf, 0.0))
-    diff_peak = amp * 2 * abs(cross) * _field_peak(config, bud) ** 2 / (0.5 * (r1 + r2))
+    diff_peak = amp * 2 * abs(cross) * field_peak(config, bud) ** 2 / (0.5 * (r1 + r2))
     return bool(diff_peak > b.saturation_power_w)
 
 

@@ -11,6 +11,7 @@ sampled. The return is one point target, or the coherent sum of a footprint's ec
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -20,12 +21,12 @@ from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, current_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..transmitter import mzm_field, wiener_phase
+from ..streams import child_stream
 from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_budget,
                      responsivities)
-from ..channel.effects import channel_returns, effect_rng
 from .common import (detection_flags, echo_mean_offset_s, optimal_phase, peak_search_max_hz,
                      process_records)
-from .echoes import Echoes
+from .model import Instrument, Measurements, Returns
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
@@ -93,137 +94,173 @@ def _echo_envelope(train, bias_v: float, v_pi_v: float, t: np.ndarray, bud: Budg
     return mag[:, None, :], arg[:, None, :]
 
 
-def simulate_rf(config, rng: np.random.Generator, *, batch: int = 1,
-                keep_spectrum: bool = False, echoes: Echoes | None = None) -> dict:
-    """Simulate ``batch`` independent shots of one configuration. Returns arrays of shape (batch,).
+@dataclass(frozen=True)
+class _Grid:
+    """The record grid of one batch: sample times, the modulator fields of the signal (delayed by
+    tau) and of the LO (by tau_ref), the record gate, the coupler's products, the records' shape
+    (batch, averages, N) and the sample rate."""
 
-    ``echoes`` (optional, see :class:`~chirplidar.tiers.echoes.Echoes`): each shot's return is the
-    coherent sum of k delayed echoes of its footprint instead of one point target at
-    ``channel.distance_m``; arrays of shape (batch, k) or (k,). ``None`` is the point target, with
-    the same random draws and results as before echoes existed; echoes draw nothing themselves.
-    """
-    if echoes is not None and not isinstance(echoes, Echoes):
-        raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
-                         f"got {type(echoes).__name__}")
-    echo_arrays = None if echoes is None else echoes.for_batch(batch)
-    bud = make_budget(config)
-    sim, sysc, proc = config.simulation, config.system, config.processing
-    fs, n, k_avg = sim.sample_rate_hz, config.n_samples, proc.averages
-    train = bud.train
-    bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
+    t: np.ndarray
+    a_sig: np.ndarray
+    a_lo: np.ndarray
+    gate: np.ndarray
+    products: tuple
+    shape: tuple
+    fs: float
+
+
+def _grid(config: Instrument, bud: Budget, batch: int) -> _Grid:
+    sim = config.simulation
+    fs = sim.sample_rate_hz
     # gate: no partial chirps, the rest of the record is zero.
-    t, a_sig, a_lo, gate, products = _modulator_fields(train, bias, vpi, n, fs, sim.duration_s,
-                                                       bud.delay_s, bud.ref_delay_s)
-    t_lo, t_sig = t - bud.ref_delay_s, t - bud.delay_s
-    s_sig = config.laser.power_w * bud.tx_gain * bud.h       # |E_s|^2 scale: mean = Psig
-    shape = (batch, k_avg, n)
-    resp = responsivities(config, bud.nu_hz)
-    rx = sysc.receiver
-    mode = sysc.coherent_mode if rx == "coherent" else "direct"
-    returns = channel_returns(config, batch, rng)  # enabled effects, on their own streams
-    flags = detection_flags(config, bud, returns, nyquist_hz=fs / 2)
-    per_shot = (batch, 1, 1)
+    t, a_sig, a_lo, gate, products = _modulator_fields(
+        bud.train, config.modulator.bias_v, config.modulator.v_pi_v, config.n_samples, fs,
+        sim.duration_s, bud.delay_s, bud.ref_delay_s)
+    return _Grid(t, a_sig, a_lo, gate, products,
+                 (batch, config.processing.averages, config.n_samples), fs)
 
-    # Laser phase noise ('phase_noise' effect: the config ties it to a linewidth > 0).
-    lw = config.laser.linewidth_hz
-    if lw > 0:
-        th_lo, th_sig = (th.reshape(shape) for th in wiener_phase(
-            [t_lo, t_sig], lw, effect_rng(rng, "phase_noise"), batch * k_avg))
+
+def simulate_rf(config: Instrument, returns: Returns, rng: np.random.Generator, *,
+                keep_spectrum: bool = False) -> Measurements:
+    """Simulate the batch of ``returns`` through the full-rate chain; arrays of shape (batch,).
+
+    With ``returns.echoes`` each shot's return is the coherent sum of k delayed echoes of its
+    footprint instead of one point target; echoes draw nothing themselves.
+    """
+    bud = make_budget(config, returns)
+    grid = _grid(config, bud, returns.batch)
+    mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
+    flags = detection_flags(config, bud, returns, nyquist_hz=grid.fs / 2)
+    th_lo, th_sig = _laser_phase_noise(config, bud, grid, rng)
+    sig, psi, dop_phase, s_sig = _signal_field(config, returns, bud, grid, rng, mode, th_sig)
+    load = transfer = None
+    if mode in ("homodyne", "phase_diversity"):
+        simple = sig.noise is None and config.laser.linewidth_hz == 0 and returns.echoes is None
+        records, noise, load, transfer = _coherent(config, bud, grid, rng, mode, sig, th_lo,
+                                                   -psi - dop_phase, s_sig, flags, simple)
+    elif mode == "heterodyne":
+        records, noise, load = _heterodyne(config, bud, rng, sig, grid.t, grid.shape,
+                                           responsivities(config, bud.nu_hz), grid.gate,
+                                           th_sig + dop_phase, psi)
     else:
-        th_lo = th_sig = np.zeros((batch, k_avg, 1))
-    # Static carrier phase of the signal relative to the LO.
-    cp = config.channel.carrier_phase
+        records, noise, load = _direct(config, bud, rng, sig, grid.t, grid.shape,
+                                       responsivities(config, bud.nu_hz), grid.gate)
+    pn_reference = (bud.train.unit(grid.t - bud.ref_delay_s)
+                    if config.system.modulation == "pn_code" else None)
+    return process_records(config, bud, records, noise, load, flags, returns, fs_hz=grid.fs,
+                           transfer=transfer, search_max_hz=peak_search_max_hz(config, bud),
+                           keep_spectrum=keep_spectrum, tier="rf", extra={},
+                           pn_reference=pn_reference, nyquist_hz=grid.fs / 2,
+                           delay_offset_s=echo_mean_offset_s(returns.echo_arrays()))
+
+
+def _laser_phase_noise(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator):
+    """(theta_lo, theta_sig): the laser's Wiener phase at t - tau_ref and t - tau, drawn on the
+    phase-noise effect's stream (zeros without a linewidth)."""
+    batch, k_avg, _ = grid.shape
+    lw = config.laser.linewidth_hz
+    if lw <= 0:
+        zero = np.zeros((batch, k_avg, 1))
+        return zero, zero
+    th_lo, th_sig = (th.reshape(grid.shape) for th in wiener_phase(
+        [grid.t - bud.ref_delay_s, grid.t - bud.delay_s], lw,
+        child_stream(rng, "effect.phase_noise"), batch * k_avg))
+    return th_lo, th_sig
+
+
+def _signal_field(config: Instrument, returns: Returns, bud: Budget, grid: _Grid,
+                  rng: np.random.Generator, mode: str, th_sig):
+    """The received signal's :class:`Field` (a point target or the echoes' sum, with the
+    transmitter's ASE), its static carrier phase psi relative to the LO, the Doppler phase ramp
+    and the per-shot power scale |E_s|^2. Draws the random carrier phase, then the ASE."""
+    batch, k_avg, _ = grid.shape
+    per_shot = (batch, 1, 1)
+    cp = returns.carrier_phase
     if cp == "random":
         psi = rng.uniform(0.0, 2 * np.pi, (batch, k_avg, 1))
     elif cp == "propagation":
-        psi = np.full((batch, k_avg, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+        psi = np.full((batch, k_avg, 1),
+                      -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
     else:
         psi = np.full((batch, k_avg, 1), optimal_phase(mode))
     psi = psi + returns.phase_rad.reshape(per_shot)              # speckle phase
+    s_sig = config.laser.power_w * bud.tx_gain * bud.h       # |E_s|^2 scale: mean = Psig
     s_sig = s_sig * returns.power_factor.reshape(per_shot)      # speckle power
     doppler = returns.doppler_hz.reshape(per_shot)
     # Carrier Doppler shift of the return (a phase ramp); absent unless the effect is enabled.
-    dop_phase = 2 * np.pi * doppler * t if np.any(doppler != 0) else 0.0
+    dop_phase = 2 * np.pi * doppler * grid.t if np.any(doppler != 0) else 0.0
     ase = None
     if bud.ase_psd_w_per_hz > 0:
-        sigma = np.sqrt(bud.ase_psd_w_per_hz * fs * bud.h / 2.0)
-        ase = sigma * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+        sigma = np.sqrt(bud.ase_psd_w_per_hz * grid.fs * bud.h / 2.0)
+        ase = sigma * (rng.standard_normal(grid.shape) + 1j * rng.standard_normal(grid.shape))
+    echo_arrays = returns.echo_arrays()
     if echo_arrays is None:
-        sig = Field(np.sqrt(s_sig) * a_sig, th_sig + psi + dop_phase, ase)
-    else:
-        # The echoes' sum is a complex, time-varying envelope: Field keeps a real amplitude and a
-        # phase, so it holds |A| and arg A. Laser phase noise: every echo takes the main delay's
-        # Wiener phase th_sig. Echoes dtau apart differ in phase noise by a variance of
-        # 2 pi linewidth |dtau| (2 pi x 100 kHz x 10 ns = 6e-3 rad^2): negligible.
-        mag, arg = _echo_envelope(train, bias, vpi, t, bud, fs, sim.upsample_factor, *echo_arrays)
-        sig = Field(np.sqrt(s_sig) * mag, arg + th_sig + psi + dop_phase, ase)
+        return Field(np.sqrt(s_sig) * grid.a_sig, th_sig + psi + dop_phase, ase), psi, \
+            dop_phase, s_sig
+    # The echoes' sum is a complex, time-varying envelope: Field keeps a real amplitude and a
+    # phase, so it holds |A| and arg A. Laser phase noise: every echo takes the main delay's
+    # Wiener phase th_sig. Echoes dtau apart differ in phase noise by a variance of
+    # 2 pi linewidth |dtau| (2 pi x 100 kHz x 10 ns = 6e-3 rad^2): negligible.
+    mag, arg = _echo_envelope(bud.train, config.modulator.bias_v, config.modulator.v_pi_v,
+                              grid.t, bud, grid.fs, config.simulation.upsample_factor,
+                              *echo_arrays)
+    return Field(np.sqrt(s_sig) * mag, arg + th_sig + psi + dop_phase, ase), psi, dop_phase, s_sig
 
-    load = None
-    transfer = None
-    extra = {}
-    if mode in ("homodyne", "phase_diversity"):
-        s_lo = bud.lo_power_scale(config.balanced.lo_power_w)
-        S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
-        b = config.balanced
-        dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
-        r1, r2 = resp["balanced_1"], resp["balanced_2"]
-        if ase is None and lw == 0 and echo_arrays is None:
-            # Without phase noise, ASE or echoes the currents are fixed mixes of three cached
-            # arrays, and a balanced pair's LO and signal power terms cancel in the coefficients.
-            cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, -psi - dop_phase) for k in (0, 1)]
-            means = [float(np.mean(a)) for a in products]
-            mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
-                      for k in (0, 1)]
-            arm = [[r1 * c for c in cf[0]], [r2 * c for c in cf[1]]]
-            if mode == "homodyne":
-                diff = combine([x - y for x, y in zip(*arm)], products)
-                total = combine([x + y for x, y in zip(*arm)], products)
-            else:
-                i1, i2 = combine(arm[0], products), combine(arm[1], products)
-        else:
-            lo = Field(np.sqrt(s_lo) * a_lo, th_lo)
-            p1, p2 = (port_power(S[k, 0], S[k, 1], lo, sig) for k in (0, 1))
-            i1, i2 = r1 * p1, r2 * p2
-            diff, total = i1 - i2, i1 + i2
-            mean_p = [float(np.mean(p1)), float(np.mean(p2))]
-        # The RF amplifier saturates on what balancing leaves: the differential optical power.
-        diff_peak = float(np.max(np.abs(diff))) / (0.5 * (r1 + r2)) if mode == "homodyne" else 0.0
-        if diff_peak > b.saturation_power_w:
-            flags.append("saturation")
-            warnings.warn(f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
-                          f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
-                          stacklevel=2)
-        noise_any = balanced_noise(config, r1, r2, *mean_p)
-        circuit = noise_any.thermal + noise_any.amplifier
-        load, z = b.output_impedance_ohm, b.transimpedance_ohm
-        transfer = single_pole(b.bandwidth_hz)
+
+def _coherent(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator, mode: str,
+              sig: Field, th_lo, lo_phase, s_sig, flags: list, simple: bool):
+    """Balanced homodyne or phase-diversity detection: (records, noise, load, transfer).
+    ``lo_phase`` = -psi - Doppler phase; ``simple``: no phase noise, ASE or echoes, so the
+    currents are fixed mixes of the three cached products."""
+    b = config.balanced
+    resp = responsivities(config, bud.nu_hz)
+    s_lo = bud.lo_power_scale(b.lo_power_w)
+    S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
+    dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
+    r1, r2 = resp["balanced_1"], resp["balanced_2"]
+    if simple:
+        # A balanced pair's LO and signal power terms cancel in the coefficients.
+        cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, lo_phase) for k in (0, 1)]
+        means = [float(np.mean(a)) for a in grid.products]
+        mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
+                  for k in (0, 1)]
+        arm = [[r1 * c for c in cf[0]], [r2 * c for c in cf[1]]]
         if mode == "homodyne":
-            # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
-            # one draw with the summed variance has the same distribution.
-            i = current_noise(rng, shape, total, 2 * dark, circuit, fs)
-            i += diff
-            i *= z
-            records = {"main": i if gate.size == 1 else i * gate}
-            noise = noise_any
+            diff = combine([x - y for x, y in zip(*arm)], grid.products)
+            total = combine([x + y for x, y in zip(*arm)], grid.products)
         else:
-            arms = []
-            for idx, ik in enumerate((i1, i2)):
-                nz = balanced_noise(config, r1, r2, *mean_p, arm=idx)
-                arms.append(z * (ik + current_noise(rng, shape, ik, dark, nz.thermal + nz.amplifier, fs)) * gate)
-            records = {"arm1": arms[0], "arm2": arms[1]}
-            noise = balanced_noise(config, r1, r2, *mean_p, arm=0)
-    elif mode == "heterodyne":
-        records, noise, load = _heterodyne(config, bud, rng, sig, t, shape, resp, gate,
-                                           th_sig + dop_phase, psi)
+            i1, i2 = combine(arm[0], grid.products), combine(arm[1], grid.products)
     else:
-        records, noise, load = _direct(config, bud, rng, sig, t, shape, resp, gate)
-
-    pn_reference = train.unit(t_lo) if sysc.modulation == "pn_code" else None
-    return process_records(config, bud, records, noise, load, flags, returns, fs_hz=fs,
-                           transfer=transfer, search_max_hz=peak_search_max_hz(config, bud),
-                           keep_spectrum=keep_spectrum, tier="rf", extra=extra,
-                           pn_reference=pn_reference, nyquist_hz=fs / 2,
-                           delay_offset_s=echo_mean_offset_s(echo_arrays))
+        lo = Field(np.sqrt(s_lo) * grid.a_lo, th_lo)
+        p1, p2 = (port_power(S[k, 0], S[k, 1], lo, sig) for k in (0, 1))
+        i1, i2 = r1 * p1, r2 * p2
+        diff, total = i1 - i2, i1 + i2
+        mean_p = [float(np.mean(p1)), float(np.mean(p2))]
+    # The RF amplifier saturates on what balancing leaves: the differential optical power.
+    diff_peak = float(np.max(np.abs(diff))) / (0.5 * (r1 + r2)) if mode == "homodyne" else 0.0
+    if diff_peak > b.saturation_power_w:
+        flags.append("saturation")
+        warnings.warn(f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
+                      f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
+                      stacklevel=3)
+    noise_any = balanced_noise(config, r1, r2, *mean_p)
+    load, z, fs = b.output_impedance_ohm, b.transimpedance_ohm, grid.fs
+    transfer = single_pole(b.bandwidth_hz)
+    if mode == "homodyne":
+        # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
+        # one draw with the summed variance has the same distribution.
+        i = current_noise(rng, grid.shape, total, 2 * dark,
+                          noise_any.thermal + noise_any.amplifier, fs)
+        i += diff
+        i *= z
+        return {"main": i if grid.gate.size == 1 else i * grid.gate}, noise_any, load, transfer
+    arms = []
+    for idx, ik in enumerate((i1, i2)):
+        nz = balanced_noise(config, r1, r2, *mean_p, arm=idx)
+        arms.append(z * (ik + current_noise(rng, grid.shape, ik, dark, nz.thermal + nz.amplifier,
+                                            fs)) * grid.gate)
+    return ({"arm1": arms[0], "arm2": arms[1]}, balanced_noise(config, r1, r2, *mean_p, arm=0),
+            load, transfer)
 
 
 def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):

@@ -1,4 +1,4 @@
-"""The bench / point-target channel of thesis Table 4.6 (TX_model.m propagation).
+"""The lab bench's point-target channel of thesis Table 4.6 (TX_model.m propagation).
 
 ``atm.state = off`` is the lab bench: a fiber spool and an attenuator stand in for free space, so only
 ``atm.Pattn`` applies. ``atm.state = on`` adds, each from the package that owns its physics:
@@ -11,13 +11,18 @@
 * the transmissions T_atm (one way, field: T_atm^4 round trip) and T_opt (end to end, field: T_opt^2).
 
 Coupling into the fiber, turbulence in the pupil and speckle are effects (channel.effects).
+:func:`lab_returns` is what the tiers take from this channel.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..config.models import MissionConfig
+from ..tiers.echoes import Echoes
+from ..tiers.model import Returns
 from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
+from .effects import channel_returns
 
 
 def round_trip_delay_s(config) -> float:
@@ -59,3 +64,44 @@ def power_transmission(config) -> float:
     transmission = (round_trip_power_transmission(t_atm_field=ch.atmospheric_transmission)
                     * ch.optical_transmission**2)
     return float(h * intercept * lambertian * transmission)
+
+
+def lab_returns(config: MissionConfig, batch: int, rng: np.random.Generator,
+                echoes: Echoes | None = None) -> Returns:
+    """The returns of ``batch`` shots at the configuration's own channel: its point target at
+    ``channel.distance_m`` (or ``echoes`` of a footprint around it), with the enabled effects
+    drawn on their own children of ``rng`` (``rng`` itself is not consumed)."""
+    effects = channel_returns(config, batch, rng)
+    ch = config.channel
+    return Returns(transmission=power_transmission(config), delay_s=round_trip_delay_s(config),
+                   range_m=ch.distance_m, group_index=ch.group_index,
+                   power_factor=effects.power_factor, phase_rad=effects.phase_rad,
+                   doppler_hz=effects.doppler_hz, carrier_phase=ch.carrier_phase,
+                   echoes=echoes, batch=batch)
+
+
+def simulate_lab(config: MissionConfig, tier: str, rng: np.random.Generator, *, batch: int = 1,
+                 echoes: Echoes | None = None, keep_spectrum: bool = False):
+    """``batch`` shots of the configuration's own channel (:func:`lab_returns`) through the tier
+    called ``tier``: its :class:`~chirplidar.tiers.model.Measurements`."""
+    from ..config.instrument import instrument_from_config
+    from ..tiers.registry import get_tier
+
+    chosen = get_tier(tier)
+    instrument = instrument_from_config(config)
+    returns = lab_returns(config, batch, rng, echoes)
+    chosen.check(instrument, returns)
+    return chosen.simulate(instrument, returns, rng, keep_spectrum=keep_spectrum)
+
+
+def lab_budget(config: MissionConfig):
+    """The tiers' :class:`~chirplidar.tiers.budget.Budget` of the configuration's own channel
+    (its mean return: no effect is drawn)."""
+    from ..config.instrument import instrument_from_config
+    from ..tiers.budget import make_budget
+
+    ch = config.channel
+    mean = Returns(transmission=power_transmission(config), delay_s=round_trip_delay_s(config),
+                   range_m=ch.distance_m, group_index=ch.group_index, power_factor=1.0,
+                   phase_rad=0.0, doppler_hz=0.0, carrier_phase=ch.carrier_phase)
+    return make_budget(instrument_from_config(config), mean)

@@ -1,0 +1,257 @@
+"""What every tier takes and gives: :class:`Instrument`, :class:`Returns`, :class:`Measurements`,
+and the :class:`Tier` protocol with the :class:`Supports` each tier declares.
+
+The data flow is one way: the configuration layer builds the instrument
+(``chirplidar.config.instrument_from_config``), the channel builds the returns (the lab bench's
+point target: ``chirplidar.channel.lab_returns``; a survey's footprints: ``chirplidar.mission``),
+and a tier turns them into measurements::
+
+    tier = TIERS["rf"]
+    tier.check(instrument, returns)            # refuses what the tier does not model, before work
+    out = tier.simulate(instrument, returns, rng)
+    out["SNR"]                                 # (batch,) dB, thesis Table 4.10
+
+Sign convention (one for every tier): a phase in :class:`Returns` or in
+:class:`~chirplidar.tiers.echoes.Echoes` is the phase of the received signal's optical field,
+``E_sig = |E_sig| exp(+j phase)``, relative to the local oscillator's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Literal, Protocol
+
+import numpy as np
+
+from ..waveform import waveform_from_config
+from .echoes import Echoes
+
+CarrierPhase = Literal["optimal", "random", "propagation"]
+
+#: Receiver kinds a tier may support: the coherent receiver's modes and the direct detectors.
+RECEIVER_KINDS = ("homodyne", "phase_diversity", "heterodyne", "pin", "apd")
+
+
+@dataclass(frozen=True)
+class FiberAcceptance:
+    """The receiver's telescope focal cone against the single-mode fiber's acceptance (thesis
+    Sec. 2.6: the marginal ray D / 2f beyond the fiber's numerical aperture is flagged)."""
+
+    telescope_diameter_m: float
+    focal_length_m: float
+    numerical_aperture: float
+
+    @property
+    def exceeded(self) -> bool:
+        half_angle = np.arctan(self.telescope_diameter_m / (2 * self.focal_length_m))
+        return bool(np.sin(half_angle) > self.numerical_aperture)
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """The transceiver a tier simulates, independent of where it points (frozen, hashable).
+
+    Its sections are the validated configuration sections of the same names (thesis Tables
+    4.1-4.9): the waveform and its timing (``waveform``, ``simulation``), the transmitter
+    (``laser``, ``modulator``, ``transmitter``), the receiver (``system`` chooses it; ``balanced``,
+    ``pin``, ``apd``, ``heterodyne`` describe the detectors) and the processing
+    (``processing``, with the reference-delay rule in ``system``). ``fiber`` is the fiber
+    coupling's acceptance check, when the receiver couples into a fiber (the ``coupling``
+    effect); ``telescope_diameter_m`` the receive aperture. Build it with
+    ``chirplidar.config.instrument_from_config``.
+    """
+
+    simulation: Any
+    system: Any
+    processing: Any
+    waveform: Any
+    laser: Any
+    modulator: Any
+    transmitter: Any
+    balanced: Any
+    pin: Any
+    apd: Any
+    heterodyne: Any
+    telescope_diameter_m: float
+    fiber: FiberAcceptance | None = None
+
+    @cached_property
+    def train(self):
+        """The drive waveform (:class:`~chirplidar.waveform.ChirpTrain` or ``PNTrain``)."""
+        return waveform_from_config(self)
+
+    @property
+    def n_samples(self) -> int:
+        """Samples of one rf record: duration x sample rate."""
+        return int(round(self.simulation.duration_s * self.simulation.sample_rate_hz))
+
+    @property
+    def receiver_kind(self) -> str:
+        """One of :data:`RECEIVER_KINDS`."""
+        if self.system.receiver == "coherent":
+            return str(self.system.coherent_mode)
+        return str(self.system.receiver)
+
+
+def _per_shot(name: str, value, batch: int) -> np.ndarray:
+    arr = np.array(np.broadcast_to(np.asarray(value, dtype=np.float64), (batch,)))
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"returns.{name} must be finite (got NaN or inf)")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Returns:
+    """What reaches the receiver, for a batch of shots.
+
+    transmission:  received / transmitted optical power of the mean return (W/W), before fading
+    delay_s:       round-trip delay of the return (s); footprint echoes are offsets from it
+    range_m:       the true one-way range (m), what ``d_error`` is measured against
+    group_index:   group index of the path (ranges are read as c tau / 2n)
+    power_factor:  (batch,) each shot's fading of the received power (speckle, coupling,
+                   turbulence), 1 for none
+    phase_rad:     (batch,) each shot's extra carrier phase of the signal field (speckle)
+    doppler_hz:    (batch,) each shot's carrier Doppler shift
+    carrier_phase: the static carrier phase: the receiver's optimum, uniform at random per record,
+                   or the propagation phase -2 pi nu (tau - tau_ref)
+    echoes:        the footprint as delayed sub-returns, or None for a point target
+    reference_delay_s: the range gate a tracker set for these shots (s), or None for the
+                   instrument's own rule (``system.reference_delay_s`` or ``sys.fmaxopt``)
+
+    Per-shot fields accept a scalar (every shot alike) and are stored as read-only (batch,)
+    float64 arrays; ``batch`` is their length.
+    """
+
+    transmission: float
+    delay_s: float
+    range_m: float
+    group_index: float
+    power_factor: np.ndarray
+    phase_rad: np.ndarray
+    doppler_hz: np.ndarray
+    carrier_phase: CarrierPhase = "optimal"
+    echoes: Echoes | None = None
+    reference_delay_s: float | None = None
+    batch: int = field(default=0)
+
+    def __post_init__(self):
+        batch = self.batch or int(np.size(self.power_factor))
+        if batch < 1:
+            raise ValueError("returns: a batch needs at least one shot")
+        object.__setattr__(self, "batch", batch)
+        for name in ("power_factor", "phase_rad", "doppler_hz"):
+            object.__setattr__(self, name, _per_shot(name, getattr(self, name), batch))
+        for name in ("transmission", "delay_s", "range_m", "group_index"):
+            value = float(getattr(self, name))
+            if not np.isfinite(value):
+                raise ValueError(f"returns.{name} must be finite (got {value})")
+            object.__setattr__(self, name, value)
+        if self.transmission < 0 or np.any(self.power_factor < 0):
+            raise ValueError("returns.transmission and returns.power_factor must be >= 0")
+        if self.echoes is not None and not isinstance(self.echoes, Echoes):
+            raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
+                             f"got {type(self.echoes).__name__}")
+
+    def echo_arrays(self):
+        """(delay_offset_s, normalised power weight, phase_rad), each (batch, k), or None."""
+        return None if self.echoes is None else self.echoes.for_batch(self.batch)
+
+
+class Measurements(Mapping):
+    """A tier's outputs for a batch: the thesis Table 4.10 names (:data:`OUTPUT_UNITS`) and
+    ``f_beat_hz`` as (batch,) arrays, tier-specific extras (e.g. the phase-diversity arms'
+    ``arm1_Crx``), the batch's ``flags``, the ``tier`` name and, when asked, the ``spectrum``.
+
+    A read-only mapping: ``out["SNR"]``, ``out["flags"]`` (a list), ``out["tier"]``.
+    """
+
+    def __init__(self, tier: str, values: Mapping[str, np.ndarray], flags, spectrum=None):
+        self.tier = tier
+        self.values = dict(values)
+        self.flags = tuple(flags)
+        self.spectrum = spectrum
+
+    def _items(self) -> dict:
+        out: dict[str, Any] = dict(self.values)
+        out["flags"] = list(self.flags)
+        out["tier"] = self.tier
+        if self.spectrum is not None:
+            out["spectrum"] = self.spectrum
+        return out
+
+    def __getitem__(self, key: str):
+        if key == "flags":
+            return list(self.flags)
+        if key == "tier":
+            return self.tier
+        if key == "spectrum" and self.spectrum is not None:
+            return self.spectrum
+        return self.values[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items())
+
+    def __len__(self) -> int:
+        return len(self._items())
+
+    def __repr__(self) -> str:
+        return f"Measurements(tier={self.tier!r}, keys={list(self.values)}, flags={list(self.flags)})"
+
+
+class UnsupportedError(ValueError):
+    """A tier was asked for something it does not model (raised before any work)."""
+
+
+@dataclass(frozen=True)
+class Supports:
+    """What a tier models: its receivers (:data:`RECEIVER_KINDS`), modulations, Doppler
+    recoveries and whether it takes footprint echoes. ``hint``: where else to go, by key."""
+
+    receivers: frozenset[str]
+    modulations: frozenset[str]
+    doppler_recovery: frozenset[str]
+    echoes: bool
+    hint: Mapping[str, str] = field(default_factory=dict)
+
+    def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
+        """Raise :class:`UnsupportedError` naming the setting this tier does not model."""
+        sysc, proc = instrument.system, instrument.processing
+        if sysc.modulation not in self.modulations:
+            modelled = " or ".join(repr(m) for m in sorted(self.modulations))
+            raise UnsupportedError(
+                f"the {tier} tier models system.modulation = {modelled} only; "
+                f"{self.hint.get('modulation', '')}system.modulation = {sysc.modulation!r}"
+                + (" (sys.MxMode = PN)" if sysc.modulation == "pn_code" else ""))
+        kind = instrument.receiver_kind
+        if kind not in self.receivers:
+            raise UnsupportedError(
+                f"the {tier} tier models the receivers {', '.join(sorted(self.receivers))}; "
+                f"{self.hint.get('receiver', '')}system.receiver = {sysc.receiver!r}, "
+                f"coherent_mode = {sysc.coherent_mode!r}")
+        if proc.doppler_recovery not in self.doppler_recovery:
+            raise UnsupportedError(
+                f"processing.doppler_recovery = {proc.doppler_recovery!r} is not modelled by the "
+                f"{tier} tier; {self.hint.get('doppler_recovery', '')}".rstrip("; "))
+        if returns is not None and returns.echoes is not None and not self.echoes:
+            raise UnsupportedError(f"the {tier} tier takes no footprint echoes (a survey "
+                                   "broadens its line in closed form)")
+
+
+class Tier(Protocol):
+    """One fidelity tier: ``simulate(instrument, returns, rng) -> Measurements``.
+
+    ``rng`` is the batch's generator; the effects' and the laser phase noise's streams are its
+    children, so enabling one leaves the others' draws unchanged.
+    """
+
+    name: str
+    summary: str
+    supports: Supports
+
+    def check(self, instrument: Instrument, returns: Returns | None = None) -> None: ...
+
+    def simulate(self, instrument: Instrument, returns: Returns, rng: np.random.Generator, *,
+                 keep_spectrum: bool = False) -> Measurements: ...
