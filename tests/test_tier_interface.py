@@ -1,0 +1,122 @@
+"""The one tier interface: the thesis's reference cases through every tier that supports them.
+
+Each case is built from the configuration the same way (``instrument_from_config`` and the lab
+channel's ``lab_returns``) and run through ``TIERS[name].simulate(instrument, returns, rng)``;
+a tier whose declared ``supports`` excludes the case must refuse it in ``check``, before any work.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chirplidar import load_mission
+from chirplidar.channel.lab import lab_budget, lab_returns
+from chirplidar.config.instrument import instrument_from_config
+from chirplidar.tiers import TIERS, Measurements, UnsupportedError
+from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, power_dbm
+from conftest import BENCH, CH5
+
+# Shots per tier: the rf tier is the reference and costs most.
+BATCH = {"rf": 8, "baseband": 64, "link": 1}
+
+
+def _supported(name, cfg) -> bool:
+    try:
+        TIERS[name].check(instrument_from_config(cfg))
+    except UnsupportedError:
+        return False
+    return True
+
+
+def _run(name, cfg, seed=0):
+    rng = np.random.default_rng(seed)
+    out = TIERS[name].simulate(instrument_from_config(cfg), lab_returns(cfg, BATCH[name], rng),
+                               rng)
+    assert isinstance(out, Measurements) and out.tier == name
+    assert out["SNR"].shape == (BATCH[name],)
+    return out
+
+
+def _at_received_power(path, overrides, psig_dbm):
+    """The mission with atm.Pattn set so that the received power is ``psig_dbm``."""
+    ptx_dbm = float(power_dbm(lab_budget(load_mission(path, overrides)).ptx_w))
+    return load_mission(path, [*overrides, f"atm.Pattn={ptx_dbm - psig_dbm}"])
+
+
+@pytest.mark.parametrize("name", list(TIERS))
+def test_table_5_4_homodyne_sensitivity(name):
+    # Thesis Table 5.4: the self-chirped homodyne receiver reads 10 dB SNR at -96 dBm
+    # (30 kHz RBW, no averaging); each tier's mean SNR there within 3 dB of it.
+    cfg = _at_received_power(CH5, [], -96.0)
+    assert _supported(name, cfg)
+    out = _run(name, cfg, seed=4)
+    assert np.allclose(out["Psig"], -96.0, atol=1e-9)
+    mean_snr_db = 10 * np.log10(np.mean(10 ** (out["SNR"] / 10)))
+    assert abs(mean_snr_db - 10.0) <= 3.0, mean_snr_db
+
+
+@pytest.mark.parametrize("name", list(TIERS))
+def test_eq_5_2_spool_beat(name):
+    # Thesis eq. 5.2: (200 MHz / 40 us)(110.4 us - 106 us) = 22 MHz for the 22.7 km spool, the
+    # reference delayed by 106 us (d_offset = c 106 us / 2n); a strong return (-60 dBm).
+    cfg = _at_received_power(CH5, [], -60.0)
+    out = _run(name, cfg, seed=1)
+    bin_hz = 1 / cfg.simulation.duration_s
+    assert np.all(np.abs(out["f_beat_hz"] - 22e6) <= max(0.3e6, 2 * bin_hz)), out["f_beat_hz"]
+    n_g = cfg.channel.group_index
+    assert np.allclose(out["d_offset"], SPEED_OF_LIGHT_M_S * 106e-6 / (2 * n_g), atol=1e-6)
+
+
+# Ideal detector: qe 0.85, no thermal or amplifier noise, no dark currents; a full-record
+# rectangular chirp, null bias, small lag (overlap 97 %).
+IDEAL = ["COH.qe1=0.85", "COH.qe2=0.85", "COH.To=0", "COH.Nep=0", "COH.Ilkg=0",
+         "chrp.rdcyc=1.0", "chrp.adcyc=1.0", "mzm.Vdc=2.0",
+         "balanced.coupler_excess_loss_db=0", "system.reference_delay_s=0", "atm.dst=300"]
+
+
+@pytest.mark.parametrize("name", list(TIERS))
+def test_shot_noise_limit_eq_2_6_2(name):
+    # Thesis eq. 2.6.2: SNR = eta P / (2 h nu B) for a random homodyne phase; at the optimum
+    # phase twice that, times the chirps' overlap (1 - tau / T)^2 of the 300 m fiber delay.
+    cfg = _at_received_power(BENCH, IDEAL, -90.0)
+    if not _supported(name, cfg):
+        pytest.skip(f"the {name} tier does not model this receiver")
+    out = _run(name, cfg, seed=3)
+    p_w = 10 ** ((-90.0 - 30) / 10)
+    nu = SPEED_OF_LIGHT_M_S / cfg.laser.wavelength_m
+    eq_2_6_2 = 0.85 * p_w / (2 * PLANCK_J_S * nu * cfg.processing.rbw_hz)
+    overlap = (1 - 2 * 300 * cfg.channel.group_index / SPEED_OF_LIGHT_M_S
+               / cfg.waveform.chirp_period_s) ** 2
+    mean_snr_db = 10 * np.log10(np.mean(10 ** (out["SNR"] / 10)))
+    assert abs(mean_snr_db - 10 * np.log10(2 * eq_2_6_2 * overlap)) <= 1.0
+
+
+@pytest.mark.parametrize("name, overrides, setting", [
+    ("baseband", ["sys.rsel=PIN", "mzm.Vdc=1.0"], "system.receiver = 'pin'"),
+    ("baseband", ["sys.CxMode=het", "mzm.Vdc=1.0"], "coherent_mode = 'heterodyne'"),
+    ("link", ["sys.rsel=PIN", "sys.MxMode=PN"], "system.modulation = 'pn_code'"),
+    ("baseband", ['processing.doppler_recovery="squaring"', "processing.doppler_max_hz=1e6"],
+     "doppler_recovery = 'squaring'"),
+])
+def test_unsupported_settings_are_refused_before_any_work(name, overrides, setting):
+    # What a tier declares it does not model is refused by check() (no budget, no draw), with
+    # the setting named; simulate() refuses it the same way.
+    cfg = load_mission(CH5, overrides)
+    instrument = instrument_from_config(cfg)
+    with pytest.raises(UnsupportedError, match=setting.replace("(", r"\(")):
+        TIERS[name].check(instrument)
+    rng = np.random.default_rng(0)
+    state = rng.bit_generator.state
+    with pytest.raises(UnsupportedError):
+        TIERS[name].simulate(instrument, lab_returns(cfg, 1, rng), rng)
+    assert rng.bit_generator.state == state
+
+
+def test_every_tier_declares_what_it_supports():
+    # The rf tier is the reference: it models every receiver and modulation the others do.
+    rf = TIERS["rf"].supports
+    for name, tier in TIERS.items():
+        assert tier.name == name and tier.summary
+        assert tier.supports.receivers <= rf.receivers
+        assert tier.supports.modulations <= rf.modulations
