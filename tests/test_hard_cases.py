@@ -65,7 +65,7 @@ from chirplidar.channel.lab import lab_budget
 from chirplidar.units import SPEED_OF_LIGHT_M_S
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ROOT / "docs" / "hard_cases.md"
+DOCS = ROOT / "docs" / "explanation" / "validation" / "hard_cases.md"
 ICESAT = ROOT / "missions" / "icesat_like.toml"
 TIERS = ("link", "baseband", "rf")
 WRITE_DOCS_ENV = "CHIRPLIDAR_WRITE_DOCS"
@@ -437,7 +437,7 @@ CASES: tuple[Case, ...] = (
          "shot", CH5, ("COH.P_LO=10e-3", f"atm.Pattn={PTX_CH5 + 110:.6f}"), TIERS,
          Expect("valid", "Psig = Ptx - atm.Pattn = -110 dBm; SNR < 10 dB: the shot-noise limit "
                 "eta P / (h nu RBW) (eq. 2.6.2) is 3.0 dB, the time-domain tiers read the largest "
-                "noise peak (README cross-validation)",
+                "noise peak (docs: explanation/validation/crossval.md)",
                 check=_all(_psig_is(-110.0), _below_threshold))),
     Case("far_below_noise_floor",
          "atm.Pattn = 250 dB: -262 dBm received, 170 dB below the noise floor",
@@ -515,7 +515,7 @@ CASES: tuple[Case, ...] = (
     Case("zero_linewidth_phase_noise",
          "phase_noise enabled with lsr.Lw = 0: an effect with nothing to simulate",
          "shot", CH5, ("lsr.Lw=0", 'effects.enabled=["phase_noise"]'), TIERS,
-         Expect("refused", "effects.enabled is the one switch of each effect (README)",
+         Expect("refused", "effects.enabled is the one switch of each effect (docs: explanation/physics.md)",
                 message=r"'phase_noise' needs a linewidth > 0")),
     Case("very_large_linewidth",
          "lsr.Lw = 1 GHz: 2 pi dnu x lag = 2.8e4, the beat's Lorentzian (FWHM 2 dnu = 2 GHz) "

@@ -122,7 +122,7 @@ def test_same_seed_same_output(flat_run):
 
 def test_sloped_plane_spread_and_rf_broadening(tmp_path):
     """Footprint range spread = tan(slope) x footprint diameter; the rf beat broadens with it."""
-    from chirplidar.mission.measure import sub_ray_power_fractions
+    from chirplidar.channel.footprint import sub_ray_power_fractions
     from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry
     from chirplidar.channel.lab import lab_budget
@@ -297,7 +297,7 @@ def test_turbulence_sees_the_scene_profile():
     profile along the slant path (r0 ~ (Cn^2 L)^(-3/5), Andrews & Phillips 2005)."""
     from chirplidar.atmosphere import fried_parameter
     from chirplidar.config.loader import config_with
-    from chirplidar.mission.measure import _equivalent_cn2
+    from chirplidar.channel.footprint import equivalent_cn2
     from chirplidar.mission.preflight import prepare
     from chirplidar.mission.survey import chunk_geometry
 
@@ -310,7 +310,7 @@ def test_turbulence_sees_the_scene_profile():
         "effects.coupling.fiber_numerical_aperture": 0.14, "effects.coupling.target": "diffuse"})
     lam = config.laser.wavelength_m
     r_med = float(np.median(g.range_true_m))
-    cn2 = _equivalent_cn2(config, scene, g, r_med)
+    cn2 = equivalent_cn2(config, scene, g, r_med)
     z_g = float(np.median(g.hit_xyz_m[..., 2]))
     z_p = float(np.median(g.platform_xyh[:, 2]))
     r0_scene = float(scene.fried_parameter_m(lam, z_g, z_p, 0.0, wave="spherical"))

@@ -1,6 +1,6 @@
 """Physical constants (CODATA 2018 exact SI values) and dB conversions.
 
-dB of zero is exactly -inf, computed without a warning and never NaN (DESIGN.md numerical rules).
+dB of zero is exactly -inf, computed without a warning and never NaN (docs/architecture.md numerical rules).
 """
 
 from __future__ import annotations

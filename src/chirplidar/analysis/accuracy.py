@@ -1,4 +1,4 @@
-"""Accuracy against time (DESIGN.md rule 1): every fidelity knob with its measured price.
+"""Accuracy against time (docs/architecture.md rule 1): every fidelity knob with its measured price.
 
 The study runs the Chapter 5 homodyne bench (``missions/thesis_ch5_bench.toml``) at a few SNR points,
 placed with the link tier (SNR falls 1 dB per dB of ``atm.Pattn``), and compares each tier and each

@@ -173,7 +173,7 @@ def write_table(rows: list[dict], path) -> Path:
 
 
 def main(argv=None) -> int:
-    """``python -m chirplidar.analysis.crossval [--out docs/crossval.md] [--n-rf N]``."""
+    """``python -m chirplidar.analysis.crossval [--out docs/explanation/validation/crossval.md] [--n-rf N]``."""
     import argparse
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

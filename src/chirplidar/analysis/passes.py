@@ -241,7 +241,7 @@ def orbit_from_mission(path, start_utc) -> OrbitSource:
     placed over its scene, t_s = 0 at ``survey.epoch_utc``), beams and attitude. ConfigError
     naming the file and key."""
     from ..config.loader import ConfigError, load_mission, scene_overrides
-    from ..mission.survey import _beams, _orbit_over
+    from ..mission.survey import beam_pattern, orbit_over_scene
 
     src = str(path)
     if not Path(path).is_file():
@@ -251,7 +251,7 @@ def orbit_from_mission(path, start_utc) -> OrbitSource:
     if pf is None or pf.kind != "satellite":
         raise ConfigError(f"{src}: passes need a satellite mission (platform.kind = "
                           f"'satellite'), found {'no [platform]' if pf is None else pf.kind}")
-    beams = _beams(cfg.beams) if cfg.beams is not None else None
+    beams = beam_pattern(cfg.beams) if cfg.beams is not None else None
     a = cfg.attitude
     att = None if a is None else Attitude(*np.radians([a.roll_deg, a.pitch_deg, a.yaw_deg]))
     steering = a is not None and a.doppler_steering
@@ -267,7 +267,7 @@ def orbit_from_mission(path, start_utc) -> OrbitSource:
     if scene is None or cfg.survey is None:
         raise ConfigError(f"{src}: a design orbit ([platform.orbit]) is placed over the "
                           "mission's [scene] at survey.epoch_utc: both are needed")
-    orbit = _orbit_over(_scene(scene, changes), pf.orbit, src)
+    orbit = orbit_over_scene(_scene(scene, changes), pf.orbit, src)
     return OrbitSource(EpochOrbit(orbit, eo.mjd_utc(cfg.survey.epoch_utc)),
                        f"{Path(path).name} (design orbit)", None, beams, att, steering, scene,
                        changes)

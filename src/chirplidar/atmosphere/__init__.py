@@ -1,6 +1,6 @@
 """Atmosphere: Cn^2 profiles, r0 / coherence radius / Rytov variance, Gaussian-beam spread and
 wander, transmission, phase screens (static and moving with the platform), and fiber coupling
-through turbulence. SI units throughout; see docs/atmosphere.md.
+through turbulence. SI units throughout; see docs/explanation/validation/atmosphere.md.
 
 Public API:
 

@@ -32,7 +32,8 @@ Screen synthesis (reimplemented after Schmidt's listings ft_phase_screen / ft_sh
   deficit of D(N dx / 4) that no number of subharmonic levels removes. There -- all subharmonic
   cells and the FFT cells with max(|kx|, |ky|) <= 4 -- each mode gets the cell's exact phase-gradient
   power, var = int_cell |f|^2 Phi d^2f / |f_c|^2 ("tilt-matched" weights, Gauss-Legendre per cell).
-  This departs from plain Lane/Schmidt on purpose; see docs/atmosphere.md for the measured gain.
+  This departs from plain Lane/Schmidt on purpose; see
+  docs/explanation/validation/atmosphere.md for the measured gain.
 
 Screens are periodic only in their high-frequency part; subharmonics are not periodic.
 

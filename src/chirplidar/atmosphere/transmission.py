@@ -1,7 +1,7 @@
 """Atmospheric transmission (extinction by absorption and scattering), power and field.
 
 The thesis parameter ``atm.T_atm`` (Table 4.6) is a *one-way field* transmission: the one-way power
-transmission is T_atm^2 and a monostatic round trip T_atm^4 (as in ``channel.bench``). An
+transmission is T_atm^2 and a monostatic round trip T_atm^4 (as in ``channel.lab``). An
 extinction coefficient alpha (1/m, power) gives the Beer-Lambert one-way power transmission
 exp(-alpha L) over a path of length L.
 """

@@ -2,7 +2,7 @@
 
 Only enabled effects are called, and each draws from its own random stream, a child of the run's
 SeedSequence keyed by the effect's name: enabling one effect leaves the draws of the others, and
-of the detector noise, unchanged (DESIGN.md "Effects").
+of the detector noise, unchanged (docs/architecture.md "Effects").
 
 An effect turns the per-shot returns into new per-shot returns (it never mutates them). The
 tiers apply the returns: ``power_factor`` scales the received power, ``phase_rad`` adds to the

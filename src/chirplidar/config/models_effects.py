@@ -91,7 +91,7 @@ class TurbulenceEffect(StrictModel):
 
 
 class Effects(StrictModel):
-    """Channel effects by name (DESIGN.md): only the enabled ones are computed or draw numbers."""
+    """Channel effects by name (docs/architecture.md): only the enabled ones are computed or draw numbers."""
 
     enabled: tuple[EffectName, ...] = Field(
         (), description="effects to simulate; the rest cost nothing and draw no random numbers")

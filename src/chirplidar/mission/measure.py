@@ -77,14 +77,11 @@ def survey_returns(config, range_m: float, transmission: float, batch: int = 1, 
 
 
 def survey_path(config) -> SurveyPath:
-    """The link tier's :class:`~chirplidar.tiers.link_survey.SurveyPath` of a survey: nodes at
-    the mean phase power ("random") or at the optimum phase (the static phases: each shot's own
-    phase is applied per shot; a node's own propagation phase would be arbitrary)."""
-    cp = config.channel.carrier_phase
+    """The link tier's :class:`~chirplidar.tiers.link_survey.SurveyPath` of a survey."""
     d_tel = config.channel.telescope_diameter_m
     return SurveyPath(group_index=config.channel.group_index,
                       reference_fraction=lambda r: reference_power_fraction(d_tel, r),
-                      carrier_phase="random" if cp == "random" else "optimal")
+                      carrier_phase=config.channel.carrier_phase)
 
 def check_range_window(config, source: str) -> None:
     """ConfigError unless ``survey.range_window_m``'s beats fit in the processed band."""

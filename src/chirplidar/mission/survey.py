@@ -45,7 +45,7 @@ def _xy(points, coordinates: str, scene) -> np.ndarray:
     return p
 
 
-def _orbit_over(scene, orb, source: str) -> KeplerOrbit:
+def orbit_over_scene(scene, orb, source: str) -> KeplerOrbit:
     """Kepler + J2 orbit whose geodetic nadir passes the scene centre at t = 0, at the height
     ``orb.altitude_m`` above the WGS-84 ellipsoid there.
 
@@ -155,7 +155,7 @@ class SurveyPlan:
         return track_index(self.path, t_s)
 
 
-def _beams(b) -> BeamPattern:
+def beam_pattern(b) -> BeamPattern:
     if b.pattern == "nadir":
         return nadir_beam()
     if b.pattern == "paired":
@@ -171,7 +171,7 @@ def _path(config, scene, source: str):
     pf = config.platform
     if pf.kind == "satellite":
         if pf.orbit is not None:
-            return _orbit_over(scene, pf.orbit, source)
+            return orbit_over_scene(scene, pf.orbit, source)
         try:
             return TleOrbit(pf.tle.line1, pf.tle.line2, config.survey.epoch_utc)
         except ValueError as exc:
@@ -250,7 +250,7 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
     sv = config.survey
     path = _path(config, scene, source)
     att = config.attitude
-    beams = _beams(config.beams)
+    beams = beam_pattern(config.beams)
     attitude = Attitude(np.radians(att.roll_deg), np.radians(att.pitch_deg),
                         np.radians(att.yaw_deg))
     chunk_starts = pass_starts = None

@@ -11,7 +11,7 @@ Public API (stable):
 * beam: ``beam_radius_m``, ``footprint_diameter_m``, ``diffraction_divergence_rad``,
   ``rayleigh_range_m``, ``beam_fraction_in_disc``
 
-See docs/optics.md.
+See docs/explanation/validation/optics.md.
 """
 
 from .beam import (

@@ -7,7 +7,7 @@ Default model "gaussian": an embedded-Gaussian (M^2) beam with its waist at the 
 W0 the 1/e^2 intensity radius at the aperture (atm.Wo) and theta the far-field 1/e^2 half-angle
 divergence (atm.div). For a diffraction-limited beam theta = lambda / (pi W0) and this is the exact
 Gaussian-beam law W0 sqrt(1 + (R / z_R)^2). Model "linear" is W0 + theta R (the bench channel of
-thesis TX_model.m as coded in ``chirplidar.channel.bench``); the two agree to within W0 and differ
+thesis TX_model.m as coded in ``chirplidar.channel.lab``); the two agree to within W0 and differ
 by less than W0^2 / (2 theta R) in the far field.
 """
 

@@ -1,6 +1,7 @@
 """Targets: Lambertian and specular reflectance, surface materials, speckle.
 
-Kernels on numpy arrays in SI units; see docs/targets.md for the formulas and sources.
+Kernels on numpy arrays in SI units; see docs/explanation/validation/targets.md for the formulas
+and sources.
 """
 
 from .materials import (

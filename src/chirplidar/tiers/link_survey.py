@@ -49,7 +49,8 @@ _ATT_SPAN_DB = 90.0       # below the strongest shot by more than this: SNR extr
 class SurveyPath:
     """What the table's nodes share with the survey: the path's group index, the received
     fraction of the ideal reference target at a range (``reference_fraction(range_m)``, W/W)
-    and the carrier-phase setting of the nodes."""
+    and the survey's carrier-phase setting (the nodes hold the mean over a uniform phase for
+    "random", else the optimum phase: each shot's static phase is applied per shot)."""
 
     group_index: float
     reference_fraction: Callable[[float], float]
@@ -66,9 +67,11 @@ def node_returns(instrument: Instrument, path: SurveyPath, range_m: float, atten
     if lag_s is not None:
         ref = max(2.0 * path.group_index * range_m / SPEED_OF_LIGHT_M_S - lag_s, 0.0)
     h = float(db_to_ratio(-attenuation_db) * path.reference_fraction(range_m))
+    # A node's own propagation phase would be arbitrary: the optimum, or the mean ("random").
+    phase = "random" if path.carrier_phase == "random" else "optimal"
     return Returns(transmission=h, delay_s=delay, range_m=range_m, group_index=path.group_index,
-                   power_factor=1.0, phase_rad=0.0, doppler_hz=doppler_hz,
-                   carrier_phase=path.carrier_phase, reference_delay_s=ref, batch=1)
+                   power_factor=1.0, phase_rad=0.0, doppler_hz=doppler_hz, carrier_phase=phase,
+                   reference_delay_s=ref, batch=1)
 
 
 def interp_table(x_nodes, y_nodes, table, x, y):
