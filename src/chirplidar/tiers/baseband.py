@@ -3,16 +3,7 @@
 The rf tier samples the modulator's field a(t) = cos(alpha + beta w(t) sin phi(t)) at GHz rates and
 lets the photodiodes form the product a(t - tau_ref) a(t - tau). Here the Jacobi-Anger expansion
 does that product analytically and keeps only what lies below the chirp's start frequency, the band
-the beat is read in:
-
-    [a_lo a_sig]_low = cos^2(alpha) J0(b_lo) J0(b_sig)
-                       + sum_{n >= 1} 2 c_n J_n(b_lo) J_n(b_sig) cos(n (phi_lo - phi_sig)),
-
-with b = beta w (the chirp envelope), c_n = sin^2(alpha) for odd n and cos^2(alpha) for even n,
-and phi_lo - phi_sig the exact difference of the two chirps' phases (each from its own chirp start,
-hold-time steps included): a tone at kappa x lag under the overlap envelope. Terms n != m beat at
-multiples of the chirp frequency, above the band, and are left out; so are harmonics n f_B above
-the band (they would alias).
+the beat is read in (tiers.baseband_product).
 
 The optical side is the rf tier's, term by term: the coupler or hybrid arm j detects
 r_j (|S_j0|^2 P_lo(t) + |S_j1|^2 P_sig(t) + 2 Re(S_j0 S_j1* E_lo E_sig*)), the signal's field is the
@@ -22,7 +13,7 @@ the same per-effect streams. Noise: shot noise of the slowly varying arm current
 noise, drawn at the baseband rate with the rf tier's own function (receiver.detectors.current_noise),
 so the noise PSD is the rf tier's. ASE beating with the LO is a white current of PSD
 4 |c|^2 P_lo(t) h S_ASE (c: the arm's coupler product). Processing is the rf tier's
-(tiers.common.analyze_block) on the shorter record, block by block.
+(tiers.records.analyze_block) on the shorter record, block by block.
 
 Averaged records: a coherent average of K records is the mean of the K signals plus ONE noise record
 of variance 1/K of a single record's (exact: a mean of Gaussians is Gaussian). A power average of K
@@ -41,15 +32,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache, partial
+from functools import partial
 
 import numpy as np
 import scipy.fft
 import scipy.linalg.blas
-from scipy.special import jv
 
 from .._threads import single_threaded_blas
-from ..streams import child_stream
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import (
@@ -58,13 +47,12 @@ from ..receiver.detectors import (
     current_noise,
     current_noise_variance,
 )
+from ..streams import child_stream
 from ..transmitter import wiener_phase
-from ..transmitter.mzm import mzm_drive_angles
 from ..units import ELEMENTARY_CHARGE_C
-from .budget import chirp_train, coupler_field_transmission, make_budget, responsivities
+from .baseband_product import BeatProduct, band_top_hz, field_peak, shared_beat
+from .budget import coupler_field_transmission, make_budget, responsivities
 from .common import (
-    analyze_block,
-    concatenate_blocks,
     detection_flags,
     echo_mean_offset_s,
     finish_outputs,
@@ -72,30 +60,11 @@ from .common import (
     peak_search_max_hz,
 )
 from .model import Instrument, Measurements, Returns
+from .records import analyze_block, concatenate_blocks
 from .registry import BASEBAND_SUPPORTS
 
-# Bessel tables over the envelope w in [0, 1] (linear interpolation: error < (1/4096)^2 / 8 of
-# J'' ~ 1e-8 of the beat amplitude).
-_TABLE_POINTS = 4097
-_HARMONIC_FLOOR = 1e-6  # harmonics whose amplitude is below this fraction of the fundamental
 DIRECT_POWER_AVERAGE = True  # draw eligible power averages per bin (tests switch it off to compare)
 _BLOCK_ELEMENTS = 1 << 20  # shots x records x samples per block (bounds the memory: 8 MB per array)
-
-
-def band_top_hz(config: Instrument) -> float:
-    """Top of the band the baseband tier simulates: ``processing.peak_search_max_hz``, else the
-    chirp's start frequency F1 + F0 (the self-chirped product's other terms lie at and above it)."""
-    top = config.processing.peak_search_max_hz
-    if top is None:
-        top = chirp_train(config.train).f_start_hz
-    if top <= config.processing.highpass_hz:
-        raise ValueError(
-            f"baseband tier: the band top {top:g} Hz (processing.peak_search_max_hz, else the "
-            f"chirp's start frequency waveform.f_start_hz + f_offset_hz) must lie above "
-            f"processing.highpass_hz = {config.processing.highpass_hz:g} Hz; set "
-            "processing.peak_search_max_hz"
-        )
-    return float(top)
 
 
 def baseband_grid(config: Instrument, doppler_max_hz: float = 0.0) -> tuple[float, int]:
@@ -111,98 +80,6 @@ def baseband_grid(config: Instrument, doppler_max_hz: float = 0.0) -> tuple[floa
         rate = 2.0 * (band_top_hz(config) + doppler_max_hz)
     n = scipy.fft.next_fast_len(int(math.ceil(sim.duration_s * rate - 1e-9)), real=True)
     return n / sim.duration_s, n
-
-
-@lru_cache(maxsize=8)
-def _bessel_table(beta: float, n_max: int) -> np.ndarray:
-    """J_n(beta x) for n = 0..n_max on x = linspace(0, 1, _TABLE_POINTS); shape (n_max+1, points)."""
-    table = jv(np.arange(n_max + 1)[:, None], beta * _TABLE_W[None, :])
-    table.setflags(write=False)
-    return table
-
-
-_TABLE_W = np.linspace(0.0, 1.0, _TABLE_POINTS)  # the tables' envelope grid
-
-
-def _lookup(table_row: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.interp(w, _TABLE_W, table_row)
-
-
-def _harmonics(alpha: float, beta: float, f_beat_max_hz: float, top_hz: float) -> list[int]:
-    """Harmonics n >= 1 of the beat to keep: non-zero coefficient, above the amplitude floor, below
-    the band top (the first harmonic always)."""
-    ref = jv(1, beta) ** 2 * np.sin(alpha) ** 2
-    keep = [1]
-    for n in range(2, 64):
-        if f_beat_max_hz * n >= top_hz:
-            break
-        c = np.cos(alpha) ** 2 if n % 2 == 0 else np.sin(alpha) ** 2
-        amp = c * jv(n, beta) ** 2
-        if (
-            ref > 0
-            and amp < _HARMONIC_FLOOR * ref
-            and jv(n, beta) ** 2 < _HARMONIC_FLOOR * jv(1, beta) ** 2
-        ):
-            break
-        if amp > 0:
-            keep.append(n)
-    return keep
-
-
-class _Product:
-    """The low-pass product [a(t - tau_ref) a(t - tau)]_low and the signal's slow power, for one
-    instrument on one baseband grid. The LO side is computed once; each delay costs one chirp-phase
-    evaluation, one envelope and the table lookups."""
-
-    def __init__(
-        self, config: Instrument, ref_delay_s: float, t: np.ndarray, top_hz: float, max_lag_s: float
-    ):
-        train = chirp_train(config.train)
-        self.train = train
-        self.alpha, self.beta = mzm_drive_angles(
-            train, config.modulator.bias_v, config.modulator.v_pi_v
-        )
-        self.t = t
-        self.n_list = _harmonics(self.alpha, self.beta, train.rate_hz_per_s * max_lag_s, top_hz)
-        n_max = max(self.n_list)
-        self.table = _bessel_table(self.beta, n_max)
-        self.table2 = _bessel_table(2.0 * self.beta, 0)[0]  # J0(2 beta w): the slow power
-        tc_lo = train.time_in_chirp(t - ref_delay_s)
-        w_lo = train.envelope(tc_lo)
-        self.phase_lo = train.phase(tc_lo)
-        self.j_lo = [_lookup(self.table[n], w_lo) for n in range(n_max + 1)]
-        self.power_lo = self.slow_power(w_lo)
-
-    def slow_power(self, w: np.ndarray) -> np.ndarray:
-        """<a^2> over the chirp phase at envelope w: (1 + cos(2 alpha) J0(2 beta w)) / 2."""
-        return 0.5 * (1.0 + np.cos(2 * self.alpha) * _lookup(self.table2, w))
-
-    def beat(self, delay_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """([a_lo a_sig]_low, <a_sig^2>) for signal delays ``delay_s`` of shape (..., 1)."""
-        tc = self.train.time_in_chirp(self.t - delay_s)
-        w = self.train.envelope(tc)
-        dphi = self.phase_lo - self.train.phase(tc)
-        ca2, sa2 = np.cos(self.alpha) ** 2, np.sin(self.alpha) ** 2
-        out = ca2 * self.j_lo[0] * _lookup(self.table[0], w)
-        for n in self.n_list:
-            coef = 2.0 * (ca2 if n % 2 == 0 else sa2)
-            out = out + coef * self.j_lo[n] * _lookup(self.table[n], w) * np.cos(n * dphi)
-        return out, self.slow_power(w)
-
-
-@lru_cache(maxsize=16)
-def _shared_beat(
-    config: Instrument, ref_delay_s: float, lag_s: float, delay_s: float, fs_hz: float, n: int
-):
-    """The product for one delay on the whole record, the LO delayed by ``ref_delay_s``, its
-    harmonics chosen for the lag ``lag_s`` (cached: sweeps and batches of one geometry reuse it
-    shot after shot; read-only arrays)."""
-    t = np.arange(n) / fs_hz
-    prod = _Product(config, ref_delay_s, t, band_top_hz_or_nyquist(config, fs_hz), lag_s)
-    beat, p_sig = prod.beat(np.array([delay_s]))
-    for arr in (beat, p_sig, prod.power_lo):
-        arr.setflags(write=False)
-    return beat, p_sig, prod.power_lo
 
 
 def band_top_hz_or_nyquist(config: Instrument, fs_hz: float) -> float:
@@ -329,9 +206,9 @@ class _BasebandRun:
         self.delays = delays
         shared = bool(np.all(delays == delays[:1]))
         max_lag = float(np.max(np.mod(delays - bud.ref_delay_s, bud.train.period_s)))
-        # None when every shot has the same delays: their products are cached (_shared_beat).
+        # None when every shot has the same delays: their products are cached (shared_beat).
         self.product = (
-            None if shared else _Product(config, bud.ref_delay_s, self.t, self.top, max_lag)
+            None if shared else BeatProduct(config, bud.ref_delay_s, self.t, self.top, max_lag)
         )
 
     def _blocks(self, keep_spectrum: bool) -> None:
@@ -413,13 +290,14 @@ class _BasebandRun:
         weights, phases = self.weights, self.phases
         if self.product is None:
             parts = [
-                _shared_beat(
+                shared_beat(
                     self.config,
                     self.bud.ref_delay_s,
                     self.bud.lag_s,
                     float(self.delays[0, kk]),
                     self.fs,
                     self.n,
+                    self.top,
                 )
                 for kk in range(k)
             ]
@@ -630,15 +508,6 @@ def draw_power_average(
     total[:, real_bins] = scale * rng.noncentral_chisquare(k, k * s2[:, real_bins] / scale)
     psd = (2.0 / (n * fs_hz * load_ohm)) * total / k
     return analyze_spectrum(psd, fs_hz, n, zero_pad=1, **kw)
-
-
-def field_peak(config: Instrument, bud) -> float:
-    """max |cos(alpha + beta w sin phi)| over the drive: 1 if alpha +- beta spans a peak of |cos|."""
-    alpha, beta = mzm_drive_angles(bud.train, config.modulator.bias_v, config.modulator.v_pi_v)
-    lo, hi = alpha - abs(beta), alpha + abs(beta)
-    if np.floor(hi / np.pi) > np.floor(lo / np.pi) or np.isclose(np.mod(lo, np.pi), 0.0):
-        return 1.0
-    return float(max(abs(np.cos(lo)), abs(np.cos(hi))))
 
 
 def _arm_coefficients(r, S, signs, sig_peak_w: float, floor=None) -> tuple[float, float]:

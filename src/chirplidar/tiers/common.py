@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
-import scipy.fft
 
-from ..processing import analyze_records
-from ..processing.spectrum import PeakResult, _parabolic
+from ..processing.spectrum import PeakResult
 from ..receiver import HYBRID_90
-from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from ..transmitter.mzm import mzm_harmonic_dominates
+from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from .model import Instrument, Measurements, Returns
 
 # Thesis Table 4.10: output names and units.
@@ -296,14 +292,7 @@ def assemble_outputs(
     d_lo, d_hi = bud.range_from_lag_m(lag_lo_s), bud.range_from_lag_m(lag_hi_s)
     snr = np.asarray(result.snr, dtype=float)
     no_return = "no_return" in flags
-    bandwidth = bud.train.bandwidth_hz
-    with np.errstate(divide="ignore"):
-        d_res = np.where(
-            snr > 0,
-            SPEED_OF_LIGHT_M_S
-            / (2 * bud.group_index * bandwidth * np.sqrt(2 * np.maximum(snr, 1e-300))),
-            np.inf,
-        )
+    d_res = _resolution_m(bud, snr)
     full = lambda v: np.full(n, float(v))  # noqa: E731
     out = {
         "Pchrp": full(power_dbm(bud.pchrp_w)),
@@ -332,13 +321,7 @@ def assemble_outputs(
         out["d_res"] = np.full(n, np.inf)
     out = {k: np.atleast_1d(v) for k, v in out.items()}
     out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
-    for key, value in (extra or {}).items():
-        if key.endswith("_w"):
-            out[key[:-2]] = np.atleast_1d(power_dbm(value))
-        elif key.endswith("_snr"):
-            out[key[:-4] + "_SNR"] = np.atleast_1d(ratio_db(value))
-        else:
-            out[key] = np.atleast_1d(value)
+    out.update(_extra_outputs(extra or {}))
     masks = unmeasured_masks(
         config,
         bud,
@@ -350,174 +333,47 @@ def assemble_outputs(
     )
     if any(np.any(m) for m in masks):
         out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
-    spectrum = None
-    if result.spectrum_f_hz is not None:
-        spectrum = {
-            "f_hz": result.spectrum_f_hz,
-            "psd_w_per_hz": result.spectrum_w_per_hz,
-            "f_peak_hz": result.f_peak_hz,
-            "f_lo_hz": result.f_lo_hz,
-            "f_hi_hz": result.f_hi_hz,
-            "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
-            "rbw_hz": config.processing.rbw_hz,
-        }
-    return Measurements(tier, out, flags, spectrum)
+    return Measurements(tier, out, flags, _spectrum(result, config.processing.rbw_hz))
 
 
-def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
-    """Cross-correlation ranging for PN codes (thesis Fig. 2.3).
-
-    Returns a PeakResult whose ``f_peak_hz`` holds the lag in seconds (the caller converts), the
-    SNR as matched-filter peak power over the mean off-peak correlation power, and Crx as the
-    detected code power.
-    """
-    v = np.asarray(v).mean(axis=1) if proc.averaging == "coherent" else np.asarray(v)[:, 0]
-    n = v.shape[-1]
-    C = scipy.fft.irfft(scipy.fft.rfft(v, axis=-1) * np.conj(scipy.fft.rfft(ref)), n=n, axis=-1)
-    energy = float(np.sum(ref * ref))
-    lags, lo, hi, peak_w, noise_w, snr = (np.empty(v.shape[0]) for _ in range(6))
-    for b in range(v.shape[0]):
-        c2 = C[b] ** 2
-        k = int(np.argmax(c2))
-        d = _parabolic(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
-        lags[b] = (k + d) / fs
-        half = 0.5 * c2[k]
-        left = k
-        while c2[left - 1] >= half and k - left < n // 2:
-            left -= 1
-        right = k
-        while c2[(right + 1) % n] >= half and right - k < n // 2:
-            right += 1
-        lo[b], hi[b] = (left - 0.5) / fs, (right + 0.5) / fs
-        guard = np.ones(n, bool)
-        guard[np.arange(k - 8, k + 9) % n] = False
-        off = float(np.mean(c2[guard]))
-        snr[b] = c2[k] / off
-        amp = C[b, k] / energy
-        peak_w[b] = amp**2 * energy / n / load
-        noise_w[b] = peak_w[b] / snr[b] / proc.rbw_hz
-    return PeakResult(
-        f_peak_hz=lags,
-        peak_power_w=peak_w,
-        noise_psd_w_per_hz=noise_w,
-        f_lo_hz=lo,
-        f_hi_hz=hi,
-        snr=snr,
-    )
-
-
-def analyze_block(
-    config,
-    records: dict,
-    load_ohm: float,
-    flags: list,
-    *,
-    fs_hz: float,
-    transfer,
-    search_max_hz: float,
-    keep_spectrum: bool,
-    pn_reference=None,
-    spectrum_analyzer=None,
-) -> tuple[PeakResult, dict]:
-    """The receiver's processing of a block of shots, shared by the rf and baseband tiers:
-    optional squaring (Appendix D), PN correlation or spectrum peak analysis, the phase-diversity
-    arms' summed spectra. Returns the peak result and the extra per-shot outputs (the arms').
-
-    ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
-    ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
-    same keyword interface (the baseband tier's direct draw of power-averaged spectra).
-    """
-    proc, sysc = config.processing, config.system
-    extra: dict[str, np.ndarray] = {}
-    analyze_main = spectrum_analyzer or analyze_records
-    kw = dict(
-        rbw_hz=proc.rbw_hz,
-        highpass_hz=proc.highpass_hz,
-        zero_pad=proc.zero_pad_factor,
-        peak_method=proc.peak_method,
-        noise_span_hz=proc.noise_span_hz,
-        noise_guard_hz=proc.noise_guard_hz,
-        transfer=transfer,
-        search_max_hz=search_max_hz,
-    )
-    squaring = proc.doppler_recovery == "squaring"
-    if squaring:
-        homodyne = sysc.receiver == "coherent" and sysc.coherent_mode == "homodyne"
-        if "main" not in records or not homodyne or sysc.modulation != "fm_chirp":
-            raise ValueError(
-                "processing.doppler_recovery = 'squaring' applies to the self-chirped "
-                "homodyne FM receiver (thesis Appendix D)"
-            )
-        # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
-        y = records["main"]
-        records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
-        if "squaring_recovery" not in flags:
-            flags.append("squaring_recovery")
-        kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
-        kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs_hz / 2)
-    if sysc.modulation == "pn_code":
-        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
-        return pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc), extra
-    if "main" in records:
-        result = analyze_main(
-            records["main"],
-            fs_hz,
-            load_ohm,
-            averaging=proc.averaging,
-            keep_spectrum=keep_spectrum,
-            **kw,
+def _resolution_m(bud, snr: np.ndarray) -> np.ndarray:
+    """The analytical range resolution c / (2 n B sqrt(2 SNR)) (m, eq. 2.2.2); inf at SNR 0."""
+    with np.errstate(divide="ignore"):
+        return np.where(
+            snr > 0,
+            SPEED_OF_LIGHT_M_S
+            / (2 * bud.group_index * bud.train.bandwidth_hz * np.sqrt(2 * np.maximum(snr, 1e-300))),
+            np.inf,
         )
-    else:
-        r1 = analyze_records(records["arm1"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
-        r2 = analyze_records(records["arm2"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
-        both = (
-            np.concatenate([records["arm1"], records["arm2"]], axis=1)
-            if proc.averaging == "power"
-            else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
-        )
-        result = analyze_records(
-            both, fs_hz, load_ohm, averaging="power", keep_spectrum=keep_spectrum, **kw
-        )
-        # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
-        # report the sums; the SNR is unchanged.
-        extra.update(
-            {
-                "arm1_Crx_w": r1.peak_power_w,
-                "arm2_Crx_w": r2.peak_power_w,
-                "arm1_snr": r1.snr,
-                "arm2_snr": r2.snr,
-            }
-        )
-        result = dataclasses.replace(
-            result,
-            peak_power_w=2 * result.peak_power_w,
-            noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz,
-        )
-    if squaring:
-        # The line found is 2 f_R; its power and SNR are those of the squared record.
-        result = dataclasses.replace(
-            result,
-            f_peak_hz=result.f_peak_hz / 2,
-            f_lo_hz=result.f_lo_hz / 2,
-            f_hi_hz=result.f_hi_hz / 2,
-        )
-    return result, extra
 
 
-def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResult, dict]:
-    """The :func:`analyze_block` results of consecutive blocks as one batch."""
-    if len(blocks) == 1:
-        return blocks[0]
-    results = [b[0] for b in blocks]
-    fields = {}
-    for f in dataclasses.fields(PeakResult):
-        parts = [getattr(r, f.name) for r in results]
-        if parts[0] is None or f.name == "spectrum_f_hz":
-            fields[f.name] = parts[0]
+def _extra_outputs(extra: dict) -> dict[str, np.ndarray]:
+    """A tier's extra per-shot outputs: ``*_w`` powers in dBm without the suffix, ``*_snr``
+    ratios as ``*_SNR`` in dB, the others as they are."""
+    out = {}
+    for key, value in extra.items():
+        if key.endswith("_w"):
+            out[key[:-2]] = np.atleast_1d(power_dbm(value))
+        elif key.endswith("_snr"):
+            out[key[:-4] + "_SNR"] = np.atleast_1d(ratio_db(value))
         else:
-            fields[f.name] = np.concatenate([np.atleast_1d(p) for p in parts], axis=0)
-    extra = {k: np.concatenate([np.atleast_1d(b[1][k]) for b in blocks]) for k in blocks[0][1]}
-    return PeakResult(**fields), extra
+            out[key] = np.atleast_1d(value)
+    return out
+
+
+def _spectrum(result: PeakResult, rbw_hz: float) -> dict | None:
+    """The spectrum a tier kept (``keep_spectrum``) with its peak and noise level, or None."""
+    if result.spectrum_f_hz is None:
+        return None
+    return {
+        "f_hz": result.spectrum_f_hz,
+        "psd_w_per_hz": result.spectrum_w_per_hz,
+        "f_peak_hz": result.f_peak_hz,
+        "f_lo_hz": result.f_lo_hz,
+        "f_hi_hz": result.f_hi_hz,
+        "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
+        "rbw_hz": rbw_hz,
+    }
 
 
 def finish_outputs(
@@ -572,51 +428,3 @@ def echo_mean_offset_s(echo_arrays):
     offsets, weights = np.asarray(echo_arrays[0], float), np.asarray(echo_arrays[1], float)
     total = weights.sum(axis=-1)
     return np.sum(weights * offsets, axis=-1) / np.where(total > 0, total, 1.0)
-
-
-def process_records(
-    config: Instrument,
-    bud,
-    records: dict,
-    noise,
-    load_ohm: float,
-    flags: list,
-    returns: Returns,
-    *,
-    fs_hz: float,
-    transfer,
-    search_max_hz: float,
-    keep_spectrum: bool,
-    tier: str,
-    extra: dict | None = None,
-    pn_reference=None,
-    spectrum_analyzer=None,
-    nyquist_hz=None,
-    delay_offset_s=None,
-) -> Measurements:
-    """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
-    further per-shot outputs to report)."""
-    result, arms = analyze_block(
-        config,
-        records,
-        load_ohm,
-        flags,
-        fs_hz=fs_hz,
-        transfer=transfer,
-        search_max_hz=search_max_hz,
-        keep_spectrum=keep_spectrum,
-        pn_reference=pn_reference,
-        spectrum_analyzer=spectrum_analyzer,
-    )
-    return finish_outputs(
-        config,
-        bud,
-        result,
-        {**(extra or {}), **arms},
-        noise,
-        flags,
-        returns,
-        tier=tier,
-        nyquist_hz=nyquist_hz,
-        delay_offset_s=delay_offset_s,
-    )

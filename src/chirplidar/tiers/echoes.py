@@ -231,7 +231,8 @@ def footprint_echoes(config: Instrument, bud, frac, dtau_s, fields=None):
     Sub-rays sample the footprint; they are not scatterers, so their optical path differences
     (2 k0 (R_k - R_l): thousands of wavelengths) must not interfere:
 
-    * ``fields`` (m, k) complex (speckle on, ``chirplidar.channel.footprint.subray_speckle_fields``): each sub-ray's patch
+    * ``fields`` (m, k) complex (speckle on,
+      ``chirplidar.channel.footprint.subray_speckle_fields``): each sub-ray's patch
       returns the field sqrt(w_k) z_k at its own delay. Echo weights w_k |z_k|^2, phases from
       arg z_k, gain sum_k w_k |z_k|^2 / sum_k w_k: an unresolved footprint's power is
       |sum_k sqrt(w_k) z_k|^2 (exponential of mean 1 for M = 1, circular Gaussian fields), a

@@ -29,8 +29,8 @@ from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from ..units import SPEED_OF_LIGHT_M_S
+from .baseband_product import field_peak
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
-from .baseband import field_peak
 from .common import (
     assemble_outputs,
     detection_flags,
@@ -174,6 +174,19 @@ def overlap_duration_s(config: Instrument, bud, lag_s, *, ref_delay_s: float = 0
     return out.reshape(np.shape(lag_s))
 
 
+def _link_flags(
+    config: Instrument, bud, returns: Returns, mode: str, s_sig: float, resp, nyquist_hz: float
+) -> list[str]:
+    """The batch's detection flags, ``linewidth_beyond_link_tier`` and the balanced pair's
+    ``saturation``."""
+    flags = detection_flags(config, bud, returns, nyquist_hz=nyquist_hz)
+    if config.laser.linewidth_hz > LINK_MAX_LINEWIDTH_HZ:
+        flags.append("linewidth_beyond_link_tier")
+    if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
+        flags.append("saturation")
+    return flags
+
+
 def simulate_link(
     config: Instrument, returns: Returns, rng: np.random.Generator, *, keep_spectrum: bool = False
 ) -> Measurements:
@@ -191,11 +204,7 @@ def simulate_link(
     resp = responsivities(config, bud.nu_hz)
     mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
     nyquist = sim.sample_rate_hz / 2  # the rf chain this closed form stands for samples at Fs
-    flags = detection_flags(config, bud, returns, nyquist_hz=nyquist)
-    if config.laser.linewidth_hz > LINK_MAX_LINEWIDTH_HZ:
-        flags.append("linewidth_beyond_link_tier")
-    if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
-        flags.append("saturation")
+    flags = _link_flags(config, bud, returns, mode, s_sig, resp, nyquist)
     # Overlap time of the two chirps: sets the resolution and the frequency scatter below.
     # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
     t_ov = float(overlap_duration_s(config, bud, bud.lag_s, ref_delay_s=bud.ref_delay_s))

@@ -20,8 +20,8 @@ import scipy.fft
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, current_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
-from ..transmitter import mzm_field, wiener_phase
 from ..streams import child_stream
+from ..transmitter import mzm_field, wiener_phase
 from .budget import (
     Budget,
     coupler_field_transmission,
@@ -34,9 +34,9 @@ from .common import (
     echo_mean_offset_s,
     optimal_phase,
     peak_search_max_hz,
-    process_records,
 )
 from .model import Instrument, Measurements, Returns
+from .records import process_records
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
