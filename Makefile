@@ -54,7 +54,8 @@ docs: install
 KERNEL_PATHS := src/chirplidar/units.py src/chirplidar/_checks.py src/chirplidar/_threads.py \
 	src/chirplidar/doppler.py src/chirplidar/optics src/chirplidar/atmosphere src/chirplidar/target \
 	src/chirplidar/geometry src/chirplidar/processing src/chirplidar/receiver \
-	src/chirplidar/transmitter src/chirplidar/waveform tests/test_layers.py
+	src/chirplidar/transmitter src/chirplidar/waveform src/chirplidar/streams.py \
+	src/chirplidar/tiers tests/test_layers.py
 
 lint: install
 	$(BIN)/ruff check src tests

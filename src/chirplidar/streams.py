@@ -37,21 +37,28 @@ class Stream:
 # MAX_CHUNK_SHOTS; tests/test_streams.py checks the two agree).
 MAX_BEAMS = 64
 MAX_CHUNK_SHOTS = 1_000_000
-BASEBAND_BATCH = 256   # shots per baseband call of a survey chunk
+BASEBAND_BATCH = 256  # shots per baseband call of a survey chunk
 
 STREAMS: dict[str, Stream] = {
     # Children of a survey chunk's SeedSequence.
     "jitter": Stream(1, "pointing jitter of the chunk's shots"),
-    "beam_effects": Stream(100, "each beam's channel-effect draws (index: beam)",
-                           max_index=MAX_BEAMS - 1),
+    "beam_effects": Stream(
+        100, "each beam's channel-effect draws (index: beam)", max_index=MAX_BEAMS - 1
+    ),
     "link_noise": Stream(200, "the link tier's Cramer-Rao draw of the measured beat"),
-    "baseband_batch": Stream(300, "each baseband batch of a chunk (index: batch)",
-                             max_index=-(-MAX_CHUNK_SHOTS * MAX_BEAMS // BASEBAND_BATCH)),
+    "baseband_batch": Stream(
+        300,
+        "each baseband batch of a chunk (index: batch)",
+        max_index=-(-MAX_CHUNK_SHOTS * MAX_BEAMS // BASEBAND_BATCH),
+    ),
     "subray_speckle": Stream(400, "each (beam, sub-ray)'s speckle field", extra=2),
     "link_fading": Stream(900_000, "the link tier's carrier-phase fading"),
     "doppler_sideband": Stream(900_001, "which Doppler sideband the link tier's peak takes"),
-    "rf_shot": Stream(1_000_000, "each rf shot-beam (index: shot x beams + beam)",
-                      max_index=MAX_CHUNK_SHOTS * MAX_BEAMS),
+    "rf_shot": Stream(
+        1_000_000,
+        "each rf shot-beam (index: shot x beams + beam)",
+        max_index=MAX_CHUNK_SHOTS * MAX_BEAMS,
+    ),
     # Children of a tier call's generator: one per channel effect (effects registry order).
     "effect.phase_noise": Stream(1000, "laser phase noise (Wiener)"),
     "effect.speckle": Stream(1001, "target speckle"),
@@ -86,8 +93,10 @@ def stream_seed(seq: np.random.SeedSequence, name: str, *indices: int) -> np.ran
         raise KeyError(f"unknown random stream {name!r}; known: {', '.join(STREAMS)}") from None
     first, rest = (indices[0], indices[1:]) if s.max_index else (0, indices)
     if len(rest) != s.extra or not 0 <= first <= s.max_index:
-        raise ValueError(f"random stream {name!r} takes {'an index and ' if s.max_index else ''}"
-                         f"{s.extra} further indices; got {indices}")
+        raise ValueError(
+            f"random stream {name!r} takes {'an index and ' if s.max_index else ''}"
+            f"{s.extra} further indices; got {indices}"
+        )
     key = (s.key + int(first),) + tuple(int(i) for i in rest)
     return np.random.SeedSequence(entropy=seq.entropy, spawn_key=tuple(seq.spawn_key) + key)
 
@@ -99,4 +108,7 @@ def stream(seq: np.random.SeedSequence, name: str, *indices: int) -> np.random.G
 
 def child_stream(rng: np.random.Generator, name: str, *indices: int) -> np.random.Generator:
     """Stream ``name`` under ``rng``'s SeedSequence (``rng`` itself is not consumed)."""
-    return stream(rng.bit_generator.seed_seq, name, *indices)
+    seq = rng.bit_generator.seed_seq
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError(f"random stream {name!r}: the generator was not seeded by a SeedSequence")
+    return stream(seq, name, *indices)

@@ -3,16 +3,7 @@
 The rf tier samples the modulator's field a(t) = cos(alpha + beta w(t) sin phi(t)) at GHz rates and
 lets the photodiodes form the product a(t - tau_ref) a(t - tau). Here the Jacobi-Anger expansion
 does that product analytically and keeps only what lies below the chirp's start frequency, the band
-the beat is read in:
-
-    [a_lo a_sig]_low = cos^2(alpha) J0(b_lo) J0(b_sig)
-                       + sum_{n >= 1} 2 c_n J_n(b_lo) J_n(b_sig) cos(n (phi_lo - phi_sig)),
-
-with b = beta w (the chirp envelope), c_n = sin^2(alpha) for odd n and cos^2(alpha) for even n,
-and phi_lo - phi_sig the exact difference of the two chirps' phases (each from its own chirp start,
-hold-time steps included): a tone at kappa x lag under the overlap envelope. Terms n != m beat at
-multiples of the chirp frequency, above the band, and are left out; so are harmonics n f_B above
-the band (they would alias).
+the beat is read in (tiers.baseband_product).
 
 The optical side is the rf tier's, term by term: the coupler or hybrid arm j detects
 r_j (|S_j0|^2 P_lo(t) + |S_j1|^2 P_sig(t) + 2 Re(S_j0 S_j1* E_lo E_sig*)), the signal's field is the
@@ -22,7 +13,7 @@ the same per-effect streams. Noise: shot noise of the slowly varying arm current
 noise, drawn at the baseband rate with the rf tier's own function (receiver.detectors.current_noise),
 so the noise PSD is the rf tier's. ASE beating with the LO is a white current of PSD
 4 |c|^2 P_lo(t) h S_ASE (c: the arm's coupler product). Processing is the rf tier's
-(tiers.common.analyze_block) on the shorter record, block by block.
+(tiers.records.analyze_block) on the shorter record, block by block.
 
 Averaged records: a coherent average of K records is the mean of the K signals plus ONE noise record
 of variance 1/K of a single record's (exact: a mean of Gaussians is Gaussian). A power average of K
@@ -41,47 +32,39 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache, partial
+from functools import partial
 
 import numpy as np
 import scipy.fft
 import scipy.linalg.blas
-from scipy.special import jv
 
 from .._threads import single_threaded_blas
-from ..streams import child_stream
 from ..processing.spectrum import analyze_spectrum
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
-from ..receiver.detectors import balanced_noise, current_noise, current_noise_variance
+from ..receiver.detectors import (
+    DetectorNoise,
+    balanced_noise,
+    current_noise,
+    current_noise_variance,
+)
+from ..streams import child_stream
 from ..transmitter import wiener_phase
-from ..transmitter.mzm import mzm_drive_angles
 from ..units import ELEMENTARY_CHARGE_C
+from .baseband_product import BeatProduct, band_top_hz, field_peak, shared_beat
 from .budget import coupler_field_transmission, make_budget, responsivities
-from .common import (analyze_block, concatenate_blocks, detection_flags, echo_mean_offset_s,
-                     finish_outputs, optimal_phase, peak_search_max_hz)
+from .common import (
+    detection_flags,
+    echo_mean_offset_s,
+    finish_outputs,
+    optimal_phase,
+    peak_search_max_hz,
+)
 from .model import Instrument, Measurements, Returns
+from .records import analyze_block, concatenate_blocks
 from .registry import BASEBAND_SUPPORTS
 
-_TABLE_POINTS = 4097        # Bessel tables over the envelope w in [0, 1] (linear interpolation:
-                            # error < (1/4096)^2 / 8 of J'' ~ 1e-8 of the beat amplitude)
-_HARMONIC_FLOOR = 1e-6      # harmonics whose amplitude is below this fraction of the fundamental
 DIRECT_POWER_AVERAGE = True  # draw eligible power averages per bin (tests switch it off to compare)
-_BLOCK_ELEMENTS = 1 << 20   # shots x records x samples per block (bounds the memory: 8 MB per array)
-
-
-def band_top_hz(config: Instrument) -> float:
-    """Top of the band the baseband tier simulates: ``processing.peak_search_max_hz``, else the
-    chirp's start frequency F1 + F0 (the self-chirped product's other terms lie at and above it)."""
-    top = config.processing.peak_search_max_hz
-    if top is None:
-        top = config.train.f_start_hz
-    if top <= config.processing.highpass_hz:
-        raise ValueError(
-            f"baseband tier: the band top {top:g} Hz (processing.peak_search_max_hz, else the "
-            f"chirp's start frequency waveform.f_start_hz + f_offset_hz) must lie above "
-            f"processing.highpass_hz = {config.processing.highpass_hz:g} Hz; set "
-            "processing.peak_search_max_hz")
-    return float(top)
+_BLOCK_ELEMENTS = 1 << 20  # shots x records x samples per block (bounds the memory: 8 MB per array)
 
 
 def baseband_grid(config: Instrument, doppler_max_hz: float = 0.0) -> tuple[float, int]:
@@ -99,91 +82,6 @@ def baseband_grid(config: Instrument, doppler_max_hz: float = 0.0) -> tuple[floa
     return n / sim.duration_s, n
 
 
-@lru_cache(maxsize=8)
-def _bessel_table(beta: float, n_max: int) -> np.ndarray:
-    """J_n(beta x) for n = 0..n_max on x = linspace(0, 1, _TABLE_POINTS); shape (n_max+1, points)."""
-    table = jv(np.arange(n_max + 1)[:, None], beta * _TABLE_W[None, :])
-    table.setflags(write=False)
-    return table
-
-
-_TABLE_W = np.linspace(0.0, 1.0, _TABLE_POINTS)   # the tables' envelope grid
-
-
-def _lookup(table_row: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.interp(w, _TABLE_W, table_row)
-
-
-def _harmonics(alpha: float, beta: float, f_beat_max_hz: float, top_hz: float) -> list[int]:
-    """Harmonics n >= 1 of the beat to keep: non-zero coefficient, above the amplitude floor, below
-    the band top (the first harmonic always)."""
-    ref = jv(1, beta) ** 2 * np.sin(alpha) ** 2
-    keep = [1]
-    for n in range(2, 64):
-        if f_beat_max_hz * n >= top_hz:
-            break
-        c = np.cos(alpha) ** 2 if n % 2 == 0 else np.sin(alpha) ** 2
-        amp = c * jv(n, beta) ** 2
-        if ref > 0 and amp < _HARMONIC_FLOOR * ref and jv(n, beta) ** 2 < _HARMONIC_FLOOR * jv(1, beta) ** 2:
-            break
-        if amp > 0:
-            keep.append(n)
-    return keep
-
-
-class _Product:
-    """The low-pass product [a(t - tau_ref) a(t - tau)]_low and the signal's slow power, for one
-    instrument on one baseband grid. The LO side is computed once; each delay costs one chirp-phase
-    evaluation, one envelope and the table lookups."""
-
-    def __init__(self, config: Instrument, ref_delay_s: float, t: np.ndarray, top_hz: float,
-                 max_lag_s: float):
-        train = config.train
-        self.train = train
-        self.alpha, self.beta = mzm_drive_angles(train, config.modulator.bias_v,
-                                                 config.modulator.v_pi_v)
-        self.t = t
-        self.n_list = _harmonics(self.alpha, self.beta, train.rate_hz_per_s * max_lag_s, top_hz)
-        n_max = max(self.n_list)
-        self.table = _bessel_table(self.beta, n_max)
-        self.table2 = _bessel_table(2.0 * self.beta, 0)[0]  # J0(2 beta w): the slow power
-        tc_lo = train.time_in_chirp(t - ref_delay_s)
-        w_lo = train.envelope(tc_lo)
-        self.phase_lo = train.phase(tc_lo)
-        self.j_lo = [_lookup(self.table[n], w_lo) for n in range(n_max + 1)]
-        self.power_lo = self.slow_power(w_lo)
-
-    def slow_power(self, w: np.ndarray) -> np.ndarray:
-        """<a^2> over the chirp phase at envelope w: (1 + cos(2 alpha) J0(2 beta w)) / 2."""
-        return 0.5 * (1.0 + np.cos(2 * self.alpha) * _lookup(self.table2, w))
-
-    def beat(self, delay_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """([a_lo a_sig]_low, <a_sig^2>) for signal delays ``delay_s`` of shape (..., 1)."""
-        tc = self.train.time_in_chirp(self.t - delay_s)
-        w = self.train.envelope(tc)
-        dphi = self.phase_lo - self.train.phase(tc)
-        ca2, sa2 = np.cos(self.alpha) ** 2, np.sin(self.alpha) ** 2
-        out = ca2 * self.j_lo[0] * _lookup(self.table[0], w)
-        for n in self.n_list:
-            coef = 2.0 * (ca2 if n % 2 == 0 else sa2)
-            out = out + coef * self.j_lo[n] * _lookup(self.table[n], w) * np.cos(n * dphi)
-        return out, self.slow_power(w)
-
-
-@lru_cache(maxsize=16)
-def _shared_beat(config: Instrument, ref_delay_s: float, lag_s: float, delay_s: float,
-                 fs_hz: float, n: int):
-    """The product for one delay on the whole record, the LO delayed by ``ref_delay_s``, its
-    harmonics chosen for the lag ``lag_s`` (cached: sweeps and batches of one geometry reuse it
-    shot after shot; read-only arrays)."""
-    t = np.arange(n) / fs_hz
-    prod = _Product(config, ref_delay_s, t, band_top_hz_or_nyquist(config, fs_hz), lag_s)
-    beat, p_sig = prod.beat(np.array([delay_s]))
-    for arr in (beat, p_sig, prod.power_lo):
-        arr.setflags(write=False)
-    return beat, p_sig, prod.power_lo
-
-
 def band_top_hz_or_nyquist(config: Instrument, fs_hz: float) -> float:
     """The band actually simulated: the band top, or the Nyquist frequency if that is lower."""
     if config.simulation.baseband_rate_hz is not None:
@@ -191,8 +89,9 @@ def band_top_hz_or_nyquist(config: Instrument, fs_hz: float) -> float:
     return min(band_top_hz(config), fs_hz / 2)
 
 
-def simulate_baseband(config: Instrument, returns: Returns, rng: np.random.Generator, *,
-                      keep_spectrum: bool = False) -> Measurements:
+def simulate_baseband(
+    config: Instrument, returns: Returns, rng: np.random.Generator, *, keep_spectrum: bool = False
+) -> Measurements:
     """Simulate the batch of ``returns`` at the detector's output rate; arrays of shape (batch,).
 
     Same outputs as :func:`~chirplidar.tiers.rf.simulate_rf`. Shots are processed in blocks of
@@ -206,8 +105,10 @@ def simulate_baseband(config: Instrument, returns: Returns, rng: np.random.Gener
 
 def _simulate_baseband(config, returns, rng, keep_spectrum) -> Measurements:
     run = _BasebandRun(config, returns, rng, keep_spectrum)
-    blocks = [run.block(slice(s0, min(run.batch, s0 + run.block_shots)))
-              for s0 in range(0, run.batch, run.block_shots)]
+    blocks = [
+        run.block(slice(s0, min(run.batch, s0 + run.block_shots)))
+        for s0 in range(0, run.batch, run.block_shots)
+    ]
     if run.mode == "homodyne":
         # The rf tier reads the amplifier's drive from the full-rate difference current; the
         # baseband record lacks the sum-frequency terms, so take the bound the full-rate current
@@ -217,19 +118,29 @@ def _simulate_baseband(config, returns, rng, keep_spectrum) -> Measurements:
         if diff_peak > config.balanced.saturation_power_w:
             run.flags.append("saturation")
     result, extra = concatenate_blocks(blocks)
-    return finish_outputs(config, run.bud, result, extra,
-                          run.circuit[0 if run.mode == "homodyne" else 1], run.flags, returns,
-                          tier="baseband", nyquist_hz=run.top,
-                          delay_offset_s=None if returns.echoes is None
-                          else echo_mean_offset_s((run.offsets, run.weights)))
+    return finish_outputs(
+        config,
+        run.bud,
+        result,
+        extra,
+        run.noise[0 if run.mode == "homodyne" else 1],
+        run.flags,
+        returns,
+        tier="baseband",
+        nyquist_hz=run.top,
+        delay_offset_s=None
+        if returns.echoes is None
+        else echo_mean_offset_s((run.offsets, run.weights)),
+    )
 
 
 class _BasebandRun:
     """One batch through the baseband chain: the batch's set-up, then :meth:`block` by block
     (each block simulated and analysed before the next: memory is bounded by the block)."""
 
-    def __init__(self, config: Instrument, returns: Returns, rng: np.random.Generator,
-                 keep_spectrum: bool):
+    def __init__(
+        self, config: Instrument, returns: Returns, rng: np.random.Generator, keep_spectrum: bool
+    ):
         self.config, self.returns, self.rng = config, returns, rng
         self.batch = returns.batch
         self.bud = bud = make_budget(config, returns)
@@ -242,13 +153,15 @@ class _BasebandRun:
         self.mode = mode = config.system.coherent_mode
         resp = responsivities(config, bud.nu_hz)
         self.r = r = (resp["balanced_1"], resp["balanced_2"])
-        self.S = S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
-        self.cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]   # arm j: 2 Re(cross_j X)
+        self.S = S = (
+            COUPLER_3DB if mode == "homodyne" else HYBRID_90
+        ) * coupler_field_transmission(config)
+        self.cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]  # arm j: 2 Re(cross_j X)
         self.s_lo = bud.lo_power_scale(b.lo_power_w)
         self.s_sig = config.laser.power_w * bud.tx_gain * bud.h
         self.flags = detection_flags(config, bud, returns, nyquist_hz=self.top)
         if bud.f_beat_hz > self.top and "beat_out_of_band" not in self.flags:
-            self.flags.append("beat_out_of_band")   # above the simulated band: it would alias
+            self.flags.append("beat_out_of_band")  # above the simulated band: it would alias
         self._phases(rng)
         self._footprint_delays()
         self._blocks(keep_spectrum)
@@ -261,8 +174,9 @@ class _BasebandRun:
         if cp == "random":
             psi = rng.uniform(0.0, 2 * np.pi, (batch, self.k_avg, 1))
         elif cp == "propagation":
-            psi = np.full((batch, 1, 1),
-                          -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+            psi = np.full(
+                (batch, 1, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
+            )
         else:
             psi = np.full((batch, 1, 1), optimal_phase(self.mode))
         self.psi = psi + returns.phase_rad.reshape(batch, 1, 1)
@@ -278,7 +192,11 @@ class _BasebandRun:
         config, bud, sim = self.config, self.bud, self.config.simulation
         if self.returns.echoes is None:
             shape = (self.batch, 1)
-            self.offsets, self.weights, self.phases = np.zeros(shape), np.ones(shape), np.zeros(shape)
+            self.offsets, self.weights, self.phases = (
+                np.zeros(shape),
+                np.ones(shape),
+                np.zeros(shape),
+            )
         else:
             self.offsets, self.weights, self.phases = self.returns.echo_arrays()
         delays = bud.delay_s + self.offsets
@@ -286,10 +204,12 @@ class _BasebandRun:
             q = 1.0 / (sim.sample_rate_hz * sim.upsample_factor)
             delays = np.round(delays / q) * q
         self.delays = delays
-        self.shared = bool(np.all(delays == delays[:1]))
+        shared = bool(np.all(delays == delays[:1]))
         max_lag = float(np.max(np.mod(delays - bud.ref_delay_s, bud.train.period_s)))
-        self.product = (None if self.shared
-                        else _Product(config, bud.ref_delay_s, self.t, self.top, max_lag))
+        # None when every shot has the same delays: their products are cached (shared_beat).
+        self.product = (
+            None if shared else BeatProduct(config, bud.ref_delay_s, self.t, self.top, max_lag)
+        )
 
     def _blocks(self, keep_spectrum: bool) -> None:
         """Block size, record buffers, noise terms and the analysis of a block."""
@@ -301,10 +221,12 @@ class _BasebandRun:
             # like the shot noise.
             cross = self.cross
             c_noise = [cross[0] - cross[1]] if self.mode == "homodyne" else cross
-            self.ase_current = [4 * abs(c) ** 2 * bud.h * bud.ase_psd_w_per_hz
-                                / (2 * ELEMENTARY_CHARGE_C) for c in c_noise]
+            self.ase_current = [
+                4 * abs(c) ** 2 * bud.h * bud.ase_psd_w_per_hz / (2 * ELEMENTARY_CHARGE_C)
+                for c in c_noise
+            ]
         k_avg, n = self.k_avg, self.n
-        per_record = (k_avg if (self.returns.carrier_phase == "random" or self.lw > 0) else 1)
+        per_record = k_avg if (self.returns.carrier_phase == "random" or self.lw > 0) else 1
         self.coherent_avg = proc.averaging == "coherent"
         # Records per shot in the block's largest arrays: K signals, or K noisy records to
         # power-average.
@@ -315,38 +237,70 @@ class _BasebandRun:
         # Power averages drawn directly: the same signal in every record, stationary white noise
         # (a constant chirp envelope keeps the LO power and so the shot noise constant), native
         # bins.
-        self.direct = (DIRECT_POWER_AVERAGE and not self.coherent_avg and k_avg > 1
-                       and per_record == 1 and self.mode == "homodyne"
-                       and proc.zero_pad_factor == 1 and proc.peak_method != "dtft"
-                       and bool(self.gate.all())
-                       and bool(np.all(bud.train.envelope_samples() == 1.0)))
+        self.direct = (
+            DIRECT_POWER_AVERAGE
+            and not self.coherent_avg
+            and k_avg > 1
+            and per_record == 1
+            and self.mode == "homodyne"
+            and proc.zero_pad_factor == 1
+            and proc.peak_method != "dtft"
+            and bool(self.gate.all())
+            and bool(np.all(bud.train.envelope_samples() == 1.0))
+        )
         self.dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
         # Noisy records are written in place into buffers reused from block to block.
         rec_shape = (min(self.block_shots, self.batch), 1 if self.coherent_avg else k_avg, n)
-        self.bufs = [np.empty(rec_shape, self.dtype)
-                     for _ in range(1 if self.mode == "homodyne" else 2)]
+        self.bufs = [
+            np.empty(rec_shape, self.dtype) for _ in range(1 if self.mode == "homodyne" else 2)
+        ]
         self.analysis = partial(
-            analyze_block, config, load_ohm=b.output_impedance_ohm, flags=self.flags,
-            fs_hz=self.fs, transfer=single_pole(b.bandwidth_hz),
+            analyze_block,
+            config,
+            load_ohm=b.output_impedance_ohm,
+            flags=self.flags,
+            fs_hz=self.fs,
+            transfer=single_pole(b.bandwidth_hz),
             search_max_hz=min(peak_search_max_hz(config, bud), self.top),
-            keep_spectrum=keep_spectrum)
-        self.mean_p = self.circuit = None
+            keep_spectrum=keep_spectrum,
+        )
+        # The detector noise (both arms, arm 1, arm 2) at the operating point the first block
+        # sets (_BlockCurrents).
+        self.circuit: list[DetectorNoise] | None = None
         self.sat_peak = 0.0
         self.z_gate = b.transimpedance_ohm * (self.gate if not self.gate.all() else 1.0)
         # Shot-noise terms whose variance is below 1e-6 of the dark and circuit floor are dropped
         # (the received signal's own shot noise against a mW LO): the noise level moves < 5e-6 dB.
         nz0 = balanced_noise(config, self.r[0], self.r[1], 0.0, 0.0)
-        self.noise_floor = 1e-6 * (2 * self.dark
-                                   + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C)
+        self.noise_floor = 1e-6 * (
+            2 * self.dark + 0.5 * (nz0.thermal + nz0.amplifier) / ELEMENTARY_CHARGE_C
+        )
+
+    @property
+    def noise(self) -> list[DetectorNoise]:
+        """:attr:`circuit`, once the first block has set it."""
+        if self.circuit is None:
+            raise RuntimeError("baseband: the detector noise is set by the first block")
+        return self.circuit
 
     def footprint(self, sl: slice):
         """Complex low-pass product C = sum_k sqrt(w_k) exp(-j phi_k) [a_lo a_k]_low (m, 1, N),
         the signal's slow power sum_k w_k <a_k^2> (m, 1, N) and the LO's (N,), for a block."""
         k = self.offsets.shape[1]
         weights, phases = self.weights, self.phases
-        if self.shared:
-            parts = [_shared_beat(self.config, self.bud.ref_delay_s, self.bud.lag_s,
-                                  float(self.delays[0, kk]), self.fs, self.n) for kk in range(k)]
+        if self.product is None:
+            parts = [
+                shared_beat(
+                    self.config,
+                    self.bud.ref_delay_s,
+                    self.bud.lag_s,
+                    float(self.delays[0, kk]),
+                    self.fs,
+                    self.n,
+                    self.top,
+                )
+                for kk in range(k)
+            ]
             p_lo = parts[0][2]
             if k == 1 and not np.any(phases[sl]):
                 return parts[0][0][None, None, :], parts[0][1][None, None, :], p_lo
@@ -354,7 +308,8 @@ class _BasebandRun:
         else:
             p_lo = self.product.power_lo
             beats = [self.product.beat(self.delays[sl, kk, None]) for kk in range(k)]
-        C, p_sig = 0.0, 0.0
+        # Sums over the echoes (float64 and complex128 terms: a 0-d zero adds as 0.0 does).
+        C, p_sig = np.zeros(()), np.zeros(())
         for kk, (bk, pk) in enumerate(beats):
             C = C + np.sqrt(weights[sl, kk, None]) * np.exp(-1j * phases[sl, kk, None]) * bk
             p_sig = p_sig + weights[sl, kk, None] * pk
@@ -369,33 +324,62 @@ class _BasebandRun:
         if self.mode != "homodyne":
             for j in (0, 1):
                 one = tuple(1 if a == j else 0 for a in (0, 1))
-                total = _dense(cur.current(one, cross[j]))    # an arm's own current: its noise
+                total = _dense(cur.current(one, cross[j]))  # an arm's own current: its noise
                 if self.ase_current:
                     total = total + self.ase_current[j] * cur.p_lo
-                nz = self.circuit[1 + j]
-                _noisy(self.rng, cur.current(one, cross[j], gain=self.z_gate), total, dark,
-                       nz.thermal + nz.amplifier, fs, shape, self.coherent_avg, k_avg,
-                       self.z_gate, self.dtype, out=self.bufs[j][:m])
+                nz = self.noise[1 + j]
+                _noisy(
+                    self.rng,
+                    cur.current(one, cross[j], gain=self.z_gate),
+                    total,
+                    dark,
+                    nz.thermal + nz.amplifier,
+                    fs,
+                    shape,
+                    self.coherent_avg,
+                    k_avg,
+                    self.z_gate,
+                    self.dtype,
+                    out=self.bufs[j][:m],
+                )
             return self.analysis({"arm1": self.bufs[0][:m], "arm2": self.bufs[1][:m]})
         # i1 - i2 and i1 + i2 from the arms' self terms and cross terms.
-        self.sat_peak = max(self.sat_peak,
-                            float(np.max(self.amp[sl])) * 2 * abs(cross[0] - cross[1]))
+        self.sat_peak = max(
+            self.sat_peak, float(np.max(self.amp[sl])) * 2 * abs(cross[0] - cross[1])
+        )
         total = _dense(cur.current((1, 1), cross[0] + cross[1], floor=self.noise_floor))
         if self.ase_current:
             total = total + self.ase_current[0] * cur.p_lo
-        nz = self.circuit[0]
+        nz = self.noise[0]
         if self.direct:
             # Noiseless records and each shot's noise variance per sample (V^2), drawn per bin.
             tot = np.broadcast_to(total, (m, 1, n))[:, 0, 0]
             var = current_noise_variance(tot, 2 * dark, nz.thermal + nz.amplifier, fs)
             diff = cur.current((1, -1), cross[0] - cross[1], gain=b.transimpedance_ohm)
-            return self.analysis({"main": np.broadcast_to(_dense(diff), (m, 1, n))},
-                                 spectrum_analyzer=partial(
-                                     draw_power_average, averages=k_avg, rng=self.rng,
-                                     var_v2=b.transimpedance_ohm ** 2 * var))
+            return self.analysis(
+                {"main": np.broadcast_to(_dense(diff), (m, 1, n))},
+                spectrum_analyzer=partial(
+                    draw_power_average,
+                    averages=k_avg,
+                    rng=self.rng,
+                    var_v2=b.transimpedance_ohm**2 * var,
+                ),
+            )
         diff = cur.current((1, -1), cross[0] - cross[1], gain=self.z_gate)
-        _noisy(self.rng, diff, total, 2 * dark, nz.thermal + nz.amplifier, fs, shape,
-               self.coherent_avg, k_avg, self.z_gate, self.dtype, out=self.bufs[0][:m])
+        _noisy(
+            self.rng,
+            diff,
+            total,
+            2 * dark,
+            nz.thermal + nz.amplifier,
+            fs,
+            shape,
+            self.coherent_avg,
+            k_avg,
+            self.z_gate,
+            self.dtype,
+            out=self.bufs[0][:m],
+        )
         return self.analysis({"main": self.bufs[0][:m]})
 
 
@@ -411,35 +395,48 @@ class _BlockCurrents:
         theta = -run.psi[sl]
         if run.doppler_on:
             theta = theta - 2 * np.pi * run.doppler[sl] * run.t
-        if run.lw > 0:
+        if run.pn_rng is not None:  # laser phase noise (a linewidth)
             bud = run.bud
-            th_lo, th_sig = (x.reshape(m, run.k_avg, run.n) for x in wiener_phase(
-                [run.t - bud.ref_delay_s, run.t - bud.delay_s], run.lw, run.pn_rng,
-                m * run.k_avg))
+            th_lo, th_sig = (
+                x.reshape(m, run.k_avg, run.n)
+                for x in wiener_phase(
+                    [run.t - bud.ref_delay_s, run.t - bud.delay_s],
+                    run.lw,
+                    run.pn_rng,
+                    m * run.k_avg,
+                )
+            )
             theta = theta + th_lo - th_sig
         self.sig_scale = sig_scale = run.s_sig * run.returns.power_factor[sl, None, None]
-        if run.mean_p is None:   # the arms' mean optical powers (the detector's operating point)
+        if run.circuit is None:  # the arms' mean optical powers (the detector's operating point)
             S, r = run.S, run.r
             mean_sig = float(np.mean(sig_scale * np.mean(p_sig, axis=-1, keepdims=True)))
-            run.mean_p = [float(abs(S[j, 0]) ** 2 * run.s_lo * np.mean(p_lo)
-                                + abs(S[j, 1]) ** 2 * mean_sig) for j in (0, 1)]
-            run.circuit = [balanced_noise(run.config, r[0], r[1], *run.mean_p, arm=a)
-                           for a in (None, 0, 1)]
-        self.outer = (not (np.iscomplexobj(C) or theta.shape[-1] > 1)
-                      and C.shape[0] == p_sig.shape[0] == 1)
+            mean_p = [
+                float(abs(S[j, 0]) ** 2 * run.s_lo * np.mean(p_lo) + abs(S[j, 1]) ** 2 * mean_sig)
+                for j in (0, 1)
+            ]
+            run.circuit = [
+                balanced_noise(run.config, r[0], r[1], *mean_p, arm=a) for a in (None, 0, 1)
+            ]
+        self.outer = (
+            not (np.iscomplexobj(C) or theta.shape[-1] > 1) and C.shape[0] == p_sig.shape[0] == 1
+        )
         if self.outer:
             # One real product for every shot and a constant phase per record: each current is
             # per-record coefficients times three functions of time, i.e. one matrix product.
-            self.rot = run.amp[sl] * np.exp(1j * theta)                  # (m, 1 or K, 1)
+            self.rot = run.amp[sl] * np.exp(1j * theta)  # (m, 1 or K, 1)
             self.peak = float(np.max(np.abs(self.rot))) * float(np.max(np.abs(C)))
         else:
-            self.X = run.amp[sl] * C * np.exp(1j * theta)                 # E_lo E_sig*
+            self.X = run.amp[sl] * C * np.exp(1j * theta)  # E_lo E_sig*
             self.peak = float(np.max(np.abs(self.X)))
         self.sig_peak = float(np.max(sig_scale)) * float(np.max(p_sig))
         # Shots of equal received power and one shared product: their direct terms are one
         # function of time, so the noise's standard deviation is computed once, not per shot.
-        self.sig_common = (float(sig_scale.flat[0]) if p_sig.shape[0] == 1
-                           and np.all(sig_scale == sig_scale.flat[0]) else None)
+        self.sig_common = (
+            float(sig_scale.flat[0])
+            if p_sig.shape[0] == 1 and np.all(sig_scale == sig_scale.flat[0])
+            else None
+        )
 
     def current(self, signs, c, floor=None, gain=1.0):
         """``gain`` x sum_j signs_j i_j(t): the arms' direct-detection terms plus
@@ -451,23 +448,39 @@ class _BlockCurrents:
         if floor is not None and 2 * abs(c) * self.peak <= floor:
             c = 0.0
         lo = (a_lo * run.s_lo) * self.p_lo * gain
-        if c == 0 and (a_sig == 0 or self.sig_common is not None):   # the same for every shot
-            return lo if a_sig == 0 else lo + (a_sig * self.sig_common) * p_sig[0, 0] * gain
+        common = self.sig_common
+        if c == 0 and a_sig == 0:
+            return lo
+        if c == 0 and common is not None:  # the same for every shot
+            return lo + (a_sig * common) * p_sig[0, 0] * gain
         if not self.outer:
             out = lo if a_sig == 0 else lo + (a_sig * sig_scale) * (p_sig * gain)
             return out if c == 0 else out + 2.0 * np.real(c * self.X) * gain
         rot = self.rot
-        coef = np.stack(np.broadcast_arrays(
-            np.ones(rot.shape), a_sig * sig_scale * np.ones(rot.shape), 2.0 * np.real(c * rot)),
-            axis=-1)[:, :, 0, :]                                      # (m, 1 or K, 3)
-        fns = np.stack([np.broadcast_to(lo, (run.n,)), a_sig * p_sig[0, 0] * gain,
-                        self.C[0, 0] * gain])                          # (3, N)
+        coef = np.stack(
+            np.broadcast_arrays(
+                np.ones(rot.shape), a_sig * sig_scale * np.ones(rot.shape), 2.0 * np.real(c * rot)
+            ),
+            axis=-1,
+        )[:, :, 0, :]  # (m, 1 or K, 3)
+        fns = np.stack(
+            [np.broadcast_to(lo, (run.n,)), a_sig * p_sig[0, 0] * gain, self.C[0, 0] * gain]
+        )  # (3, N)
         return _LowRank(coef, fns)
 
 
-def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, var_v2: np.ndarray,
-                       averages: int, rng: np.random.Generator, averaging: str = "power",
-                       zero_pad: int = 1, **kw):
+def draw_power_average(
+    signal_v: np.ndarray,
+    fs_hz: float,
+    load_ohm: float,
+    *,
+    var_v2: np.ndarray,
+    averages: int,
+    rng: np.random.Generator,
+    averaging: str = "power",
+    zero_pad: int = 1,
+    **kw,
+):
     """Peak analysis of the power average of ``averages`` records, each the same signal plus its
     own white Gaussian noise of variance ``var_v2`` per sample, drawn directly per FFT bin.
 
@@ -482,8 +495,8 @@ def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, v
         raise ValueError("draw_power_average: power averaging on native FFT bins only")
     n = signal_v.shape[-1]
     S = scipy.fft.rfft(signal_v[:, 0, :], axis=-1, workers=-1)
-    scale = n * np.asarray(var_v2, float)[:, None]                   # E|N_k|^2, (batch, 1)
-    s2 = S.real ** 2 + S.imag ** 2
+    scale = n * np.asarray(var_v2, float)[:, None]  # E|N_k|^2, (batch, 1)
+    s2 = S.real**2 + S.imag**2
     real_bins = np.zeros(S.shape[-1], bool)
     real_bins[0] = True
     if n % 2 == 0:
@@ -491,20 +504,10 @@ def draw_power_average(signal_v: np.ndarray, fs_hz: float, load_ohm: float, *, v
     k = averages
     total = np.empty_like(s2)
     inner = ~real_bins
-    total[:, inner] = 0.5 * scale * rng.noncentral_chisquare(
-        2 * k, 2 * k * s2[:, inner] / scale)
+    total[:, inner] = 0.5 * scale * rng.noncentral_chisquare(2 * k, 2 * k * s2[:, inner] / scale)
     total[:, real_bins] = scale * rng.noncentral_chisquare(k, k * s2[:, real_bins] / scale)
     psd = (2.0 / (n * fs_hz * load_ohm)) * total / k
     return analyze_spectrum(psd, fs_hz, n, zero_pad=1, **kw)
-
-
-def field_peak(config: Instrument, bud) -> float:
-    """max |cos(alpha + beta w sin phi)| over the drive: 1 if alpha +- beta spans a peak of |cos|."""
-    alpha, beta = mzm_drive_angles(bud.train, config.modulator.bias_v, config.modulator.v_pi_v)
-    lo, hi = alpha - abs(beta), alpha + abs(beta)
-    if np.floor(hi / np.pi) > np.floor(lo / np.pi) or np.isclose(np.mod(lo, np.pi), 0.0):
-        return 1.0
-    return float(max(abs(np.cos(lo)), abs(np.cos(hi))))
 
 
 def _arm_coefficients(r, S, signs, sig_peak_w: float, floor=None) -> tuple[float, float]:
@@ -521,8 +524,9 @@ def _arm_coefficients(r, S, signs, sig_peak_w: float, floor=None) -> tuple[float
     return float(a_lo), float(a_sig)
 
 
-def _noisy(rng, signal_v, total, dark_a, circuit_psd, fs, shape, coherent_avg, k_avg, gain, dtype,
-           out):
+def _noisy(
+    rng, signal_v, total, dark_a, circuit_psd, fs, shape, coherent_avg, k_avg, gain, dtype, out
+):
     """Signal voltage ``signal_v`` plus the noise of ``total`` (A) times ``gain`` (the
     transimpedance times the record gate, V/A), written to ``out`` (m, 1 or K, N) of ``dtype``.
 
@@ -533,11 +537,21 @@ def _noisy(rng, signal_v, total, dark_a, circuit_psd, fs, shape, coherent_avg, k
         signal_v = _mean_records(signal_v)
         if np.ndim(total) == 3 and total.shape[1] > 1:
             total = total.mean(axis=1, keepdims=True)
-        noise = current_noise(rng, shape, np.divide(total, k_avg), dark_a / k_avg,
-                              circuit_psd / k_avg, fs, dtype=dtype, gain=gain, out=out)
+        noise = current_noise(
+            rng,
+            shape,
+            np.divide(total, k_avg),
+            dark_a / k_avg,
+            circuit_psd / k_avg,
+            fs,
+            dtype=dtype,
+            gain=gain,
+            out=out,
+        )
     else:
-        noise = current_noise(rng, shape, total, dark_a, circuit_psd, fs, dtype=dtype, gain=gain,
-                              out=out)
+        noise = current_noise(
+            rng, shape, total, dark_a, circuit_psd, fs, dtype=dtype, gain=gain, out=out
+        )
     if isinstance(signal_v, _LowRank):
         signal_v.add_to(noise)
     else:
@@ -558,7 +572,7 @@ class _LowRank:
 
     def add_to(self, out: np.ndarray) -> None:
         """out += records, for C-contiguous float32/float64 ``out`` (m, K, N)."""
-        rows = out.reshape(-1, out.shape[-1])                       # a view: out is contiguous
+        rows = out.reshape(-1, out.shape[-1])  # a view: out is contiguous
         coef = np.broadcast_to(self.coef, out.shape[:2] + self.coef.shape[-1:])
         coef = coef.reshape(-1, self.coef.shape[-1]).astype(out.dtype)
         gemm = scipy.linalg.blas.get_blas_funcs("gemm", (rows,))

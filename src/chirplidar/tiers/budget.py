@@ -11,6 +11,7 @@ import numpy as np
 
 from ..transmitter.mzm import mzm_mean_power_transmission
 from ..units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, responsivity_a_per_w
+from ..waveform import ChirpTrain, Waveform
 from .model import Instrument, Returns
 
 #: The heterodyne IF band-pass half-width as a multiple of the chirp's top frequency.
@@ -19,19 +20,19 @@ IF_HALF_WIDTH_FACTOR = 1.25
 
 @dataclass(frozen=True)
 class Budget:
-    train: object
-    nu_hz: float                 # optical frequency c / lambda
-    mzm_mean_transmission: float # <cos^2(pi V / 2 V_pi)> over a period
-    pchrp_w: float               # generator power into the modulator while chirping
-    tx_gain: float               # transmit arm power gain after the modulator (split, amplifier)
-    ptx_w: float                 # mean transmitted optical power (signal)
-    ase_psd_w_per_hz: float      # ASE PSD at the transmitter output (one polarisation), 0 if none
-    h: float                     # channel power transmission
-    psig_w: float                # mean received optical power
-    delay_s: float               # round-trip delay tau
-    ref_delay_s: float           # reference (LO / dechirp) delay tau_ref
-    lag_s: float                 # tau - tau_ref reduced to [0, period)
-    f_beat_hz: float             # kappa * lag (FM) ; 0 for PN
+    train: Waveform
+    nu_hz: float  # optical frequency c / lambda
+    mzm_mean_transmission: float  # <cos^2(pi V / 2 V_pi)> over a period
+    pchrp_w: float  # generator power into the modulator while chirping
+    tx_gain: float  # transmit arm power gain after the modulator (split, amplifier)
+    ptx_w: float  # mean transmitted optical power (signal)
+    ase_psd_w_per_hz: float  # ASE PSD at the transmitter output (one polarisation), 0 if none
+    h: float  # channel power transmission
+    psig_w: float  # mean received optical power
+    delay_s: float  # round-trip delay tau
+    ref_delay_s: float  # reference (LO / dechirp) delay tau_ref
+    lag_s: float  # tau - tau_ref reduced to [0, period)
+    f_beat_hz: float  # kappa * lag (FM) ; 0 for PN
     rate_hz_per_s: float
     group_index: float
     quantized: bool
@@ -48,7 +49,17 @@ class Budget:
         return SPEED_OF_LIGHT_M_S * self.ref_delay_s / (2.0 * self.group_index)
 
     def range_from_lag_m(self, lag_s):
-        return SPEED_OF_LIGHT_M_S * (np.asarray(lag_s) + self.ref_delay_s) / (2.0 * self.group_index)
+        return (
+            SPEED_OF_LIGHT_M_S * (np.asarray(lag_s) + self.ref_delay_s) / (2.0 * self.group_index)
+        )
+
+
+def chirp_train(train: Waveform) -> ChirpTrain:
+    """``train`` as a chirp, for what only a chirp has (its frequencies, rate and phase). The
+    callers run for fm_chirp only: their tier's Supports or the configuration refuse a code."""
+    if not isinstance(train, ChirpTrain):
+        raise RuntimeError(f"a chirp train is needed here; got {type(train).__name__}")
+    return train
 
 
 def reference_delay_s(instrument: Instrument, delay_s, rate_hz_per_s: float):
@@ -86,17 +97,34 @@ def make_budget(instrument: Instrument, returns: Returns) -> Budget:
     h = returns.transmission
     delay = returns.delay_s
     rate = train.rate_hz_per_s if hasattr(train, "rate_hz_per_s") else 0.0
-    ref = (float(returns.reference_delay_s) if returns.reference_delay_s is not None
-           else float(reference_delay_s(instrument, delay, rate if rate else 1.0)))
+    ref = (
+        float(returns.reference_delay_s)
+        if returns.reference_delay_s is not None
+        else float(reference_delay_s(instrument, delay, rate if rate else 1.0))
+    )
     quantized = config.simulation.delay_method == "resample"
     if quantized:
         q = 1.0 / (config.simulation.sample_rate_hz * config.simulation.upsample_factor)
         delay, ref = round(delay / q) * q, round(ref / q) * q
     lag = float(np.mod(delay - ref, train.period_s))
-    return Budget(train=train, nu_hz=nu, mzm_mean_transmission=m2, pchrp_w=pchrp, tx_gain=gain,
-                  ptx_w=ptx, ase_psd_w_per_hz=ase, h=h, psig_w=ptx * h, delay_s=delay,
-                  ref_delay_s=ref, lag_s=lag, f_beat_hz=rate * lag, rate_hz_per_s=rate,
-                  group_index=returns.group_index, quantized=quantized)
+    return Budget(
+        train=train,
+        nu_hz=nu,
+        mzm_mean_transmission=m2,
+        pchrp_w=pchrp,
+        tx_gain=gain,
+        ptx_w=ptx,
+        ase_psd_w_per_hz=ase,
+        h=h,
+        psig_w=ptx * h,
+        delay_s=delay,
+        ref_delay_s=ref,
+        lag_s=lag,
+        f_beat_hz=rate * lag,
+        rate_hz_per_s=rate,
+        group_index=returns.group_index,
+        quantized=quantized,
+    )
 
 
 def responsivities(config: Instrument, nu_hz: float) -> dict[str, float]:
@@ -117,4 +145,4 @@ def coupler_field_transmission(config: Instrument) -> float:
 
 def if_half_width_hz(config: Instrument, bud: Budget) -> float:
     """Half-width of the heterodyne IF band-pass around f_LO (the validated band)."""
-    return IF_HALF_WIDTH_FACTOR * bud.train.f_stop_hz
+    return IF_HALF_WIDTH_FACTOR * chirp_train(bud.train).f_stop_hz

@@ -2,34 +2,50 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
-import scipy.fft
 
-from ..processing import analyze_records
-from ..processing.spectrum import PeakResult, _parabolic
+from ..processing.spectrum import PeakResult
 from ..receiver import HYBRID_90
-from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from ..transmitter.mzm import mzm_harmonic_dominates
+from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from .model import Instrument, Measurements, Returns
 
 # Thesis Table 4.10: output names and units.
 OUTPUT_UNITS: dict[str, str] = {
-    "Pchrp": "dBm", "Ptx": "dBm", "Psig": "dBm", "Ne": "dBm/Hz", "Ns": "dBm/Hz", "Nt": "dBm/Hz",
-    "d_offset": "m", "d_rx": "m", "d_lo": "m", "d_hi": "m", "d_error": "m", "d_3dB": "m",
-    "d_res": "m", "Crx": "dBm", "Navg": "dBm", "SNR": "dB",
+    "Pchrp": "dBm",
+    "Ptx": "dBm",
+    "Psig": "dBm",
+    "Ne": "dBm/Hz",
+    "Ns": "dBm/Hz",
+    "Nt": "dBm/Hz",
+    "d_offset": "m",
+    "d_rx": "m",
+    "d_lo": "m",
+    "d_hi": "m",
+    "d_error": "m",
+    "d_3dB": "m",
+    "d_res": "m",
+    "Crx": "dBm",
+    "Navg": "dBm",
+    "SNR": "dB",
 }
 OUTPUT_NAMES: tuple[str, ...] = tuple(OUTPUT_UNITS)
 OUTPUT_LONG_NAMES: dict[str, str] = {
-    "Pchrp": "chirp waveform generator output power", "Ptx": "transmitted optical power",
-    "Psig": "received optical power", "Ne": "equivalent amplifier input noise PSD",
-    "Ns": "photodiode shot noise PSD", "Nt": "photodiode thermal noise PSD",
-    "d_offset": "distance offset due to local (reference) delay", "d_rx": "detected target distance",
-    "d_lo": "lower bound of the 3 dB range uncertainty", "d_hi": "upper bound of the 3 dB range uncertainty",
-    "d_error": "range error dst - d_rx", "d_3dB": "3 dB range resolution d_hi - d_lo",
+    "Pchrp": "chirp waveform generator output power",
+    "Ptx": "transmitted optical power",
+    "Psig": "received optical power",
+    "Ne": "equivalent amplifier input noise PSD",
+    "Ns": "photodiode shot noise PSD",
+    "Nt": "photodiode thermal noise PSD",
+    "d_offset": "distance offset due to local (reference) delay",
+    "d_rx": "detected target distance",
+    "d_lo": "lower bound of the 3 dB range uncertainty",
+    "d_hi": "upper bound of the 3 dB range uncertainty",
+    "d_error": "range error dst - d_rx",
+    "d_3dB": "3 dB range resolution d_hi - d_lo",
     "d_res": "analytical range resolution c / (2 B sqrt(2 SNR)) (eq. 2.2.2)",
-    "Crx": "received beat power read from the spectrum", "Navg": "noise level in the RBW read from the spectrum",
+    "Crx": "received beat power read from the spectrum",
+    "Navg": "noise level in the RBW read from the spectrum",
     "SNR": "signal-to-noise ratio in the RBW (eq. 2.6.12)",
 }
 
@@ -66,7 +82,7 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     f_b = np.asarray(f_beat_hz, float)
     f_d = np.broadcast_to(np.asarray(f_doppler_hz, float), f_b.shape)
     if not np.any(f_d != 0):
-        return f_b   # no draw: outputs without Doppler keep their random streams
+        return f_b  # no draw: outputs without Doppler keep their random streams
     up, down = np.abs(f_b + f_d), np.abs(f_b - f_d)
     lo, hi = config.processing.highpass_hz, peak_search_max_hz(config, bud)
     up_in, down_in = (lo <= up) & (up <= hi), (lo <= down) & (down <= hi)
@@ -74,8 +90,9 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     return np.where(down_in & (~up_in | coin), down, up)
 
 
-def detection_flags(config: Instrument, bud, returns: Returns | None = None, *,
-                    nyquist_hz=None) -> list[str]:
+def detection_flags(
+    config: Instrument, bud, returns: Returns | None = None, *, nyquist_hz=None
+) -> list[str]:
     """Flags of a batch from its budget: ``no_return`` (zero received power), ``no_lo`` (a
     coherent receiver with zero LO power: nothing to beat with), ``no_chirp`` (no drive voltage
     on the modulator: no chirp, so no beat), ``harmonic_beat`` (the modulator's bias puts more
@@ -94,8 +111,11 @@ def detection_flags(config: Instrument, bud, returns: Returns | None = None, *,
     if config.waveform.vpp_v <= 0:
         flags.append("no_chirp")
     elif config.system.modulation == "fm_chirp" and mzm_harmonic_dominates(
-            bud.train, config.modulator.bias_v, config.modulator.v_pi_v,
-            field=config.system.receiver == "coherent"):
+        bud.train,
+        config.modulator.bias_v,
+        config.modulator.v_pi_v,
+        field=config.system.receiver == "coherent",
+    ):
         flags.append("harmonic_beat")
     if config.fiber is not None and config.fiber.exceeded:
         flags.append("fiber_acceptance_exceeded")
@@ -145,8 +165,9 @@ _RANGE_KEYS = ("d_rx", "d_lo", "d_hi", "d_error")
 _NO_BEAT = ("no_return", "no_lo", "no_chirp")
 
 
-def unmeasured_masks(config, bud, flags: list, n: int, *, power_factor=None,
-                     delay_offset_s=None, nyquist_hz=None):
+def unmeasured_masks(
+    config, bud, flags: list, n: int, *, power_factor=None, delay_offset_s=None, nyquist_hz=None
+):
     """Per-shot masks (silent, off_band, ambiguous) of the shots whose beat a tier cannot read:
 
     * silent: no signal to beat: zero received power (``no_return``), no LO (``no_lo``), no
@@ -159,24 +180,36 @@ def unmeasured_masks(config, bud, flags: list, n: int, *, power_factor=None,
     ``delay_offset_s`` (n,): each shot's power-weighted mean echo delay offset from the budget's
     delay (footprint echoes), else 0. The flags a shot has and ``flags`` lacks are appended to
     ``flags``."""
-    pf = np.ones(n) if power_factor is None else np.broadcast_to(
-        np.asarray(power_factor, float), (n,))
+    pf = (
+        np.ones(n)
+        if power_factor is None
+        else np.broadcast_to(np.asarray(power_factor, float), (n,))
+    )
     silent = (bud.psig_w * pf <= 0) | any(f in flags for f in _NO_BEAT)
     off_band = np.zeros(n, bool)
     ambiguous = np.zeros(n, bool)
     if config.system.modulation == "fm_chirp":
-        off = 0.0 if delay_offset_s is None else np.broadcast_to(
-            np.asarray(delay_offset_s, float), (n,))
+        off = (
+            0.0
+            if delay_offset_s is None
+            else np.broadcast_to(np.asarray(delay_offset_s, float), (n,))
+        )
         raw = np.broadcast_to((bud.delay_s + off) - bud.ref_delay_s, (n,))
         lag = np.mod(raw, bud.train.period_s)
         f_b = bud.rate_hz_per_s * lag
-        no_overlap, out_of_band = (np.broadcast_to(m, (n,)) for m in beat_flags(config, bud, lag, f_b))
+        no_overlap, out_of_band = (
+            np.broadcast_to(m, (n,)) for m in beat_flags(config, bud, lag, f_b)
+        )
         above = (f_b > nyquist_hz) if nyquist_hz is not None else np.zeros(n, bool)
         ambiguous = np.broadcast_to(range_ambiguous(bud, raw), (n,))
         other_tone = np.broadcast_to(next_chirp_tone(bud, raw), (n,))
-        for name, mask in (("no_overlap", no_overlap), ("beat_out_of_band", out_of_band | above),
-                           ("beat_above_nyquist", above), ("range_ambiguous", ambiguous),
-                           ("next_chirp_tone", other_tone)):
+        for name, mask in (
+            ("no_overlap", no_overlap),
+            ("beat_out_of_band", out_of_band | above),
+            ("beat_above_nyquist", above),
+            ("range_ambiguous", ambiguous),
+            ("next_chirp_tone", other_tone),
+        ):
             if np.any(mask) and name not in flags:
                 flags.append(name)
         silent = silent | no_overlap
@@ -217,14 +250,29 @@ def beat_flags(config, bud, lag_s, f_beat_hz):
     rise, period = bud.train.rise_s, bud.train.period_s
     lag, f_b = np.asarray(lag_s, float), np.asarray(f_beat_hz, float)
     no_overlap = (lag >= rise) & (period - lag >= rise)
-    out_of_band = ~((config.processing.highpass_hz <= f_b)
-                    & (f_b <= peak_search_max_hz(config, bud)))
+    out_of_band = ~(
+        (config.processing.highpass_hz <= f_b) & (f_b <= peak_search_max_hz(config, bud))
+    )
     return no_overlap[()], out_of_band[()]
 
 
-def assemble_outputs(config: Instrument, bud, result: PeakResult, noise, flags, *, range_m: float,
-                     extra=None, tier: str, lag_s=None, lag_lo_s=None, lag_hi_s=None,
-                     power_factor=None, nyquist_hz=None, delay_offset_s=None) -> Measurements:
+def assemble_outputs(
+    config: Instrument,
+    bud,
+    result: PeakResult,
+    noise,
+    flags,
+    *,
+    range_m: float,
+    extra=None,
+    tier: str,
+    lag_s=None,
+    lag_lo_s=None,
+    lag_hi_s=None,
+    power_factor=None,
+    nyquist_hz=None,
+    delay_offset_s=None,
+) -> Measurements:
     """Table 4.10 outputs (arrays over the batch) from a peak result and the noise model.
 
     ``range_m``: the true range ``d_error`` is measured against. ``power_factor`` (per shot) is
@@ -244,22 +292,26 @@ def assemble_outputs(config: Instrument, bud, result: PeakResult, noise, flags, 
     d_lo, d_hi = bud.range_from_lag_m(lag_lo_s), bud.range_from_lag_m(lag_hi_s)
     snr = np.asarray(result.snr, dtype=float)
     no_return = "no_return" in flags
-    bandwidth = bud.train.bandwidth_hz
-    with np.errstate(divide="ignore"):
-        d_res = np.where(snr > 0, SPEED_OF_LIGHT_M_S / (2 * bud.group_index * bandwidth
-                                                        * np.sqrt(2 * np.maximum(snr, 1e-300))), np.inf)
+    d_res = _resolution_m(bud, snr)
     full = lambda v: np.full(n, float(v))  # noqa: E731
     out = {
-        "Pchrp": full(power_dbm(bud.pchrp_w)), "Ptx": full(power_dbm(bud.ptx_w)),
-        "Psig": (full(power_dbm(bud.psig_w)) if power_factor is None
-                 else np.atleast_1d(power_dbm(bud.psig_w * np.asarray(power_factor, float)))),
+        "Pchrp": full(power_dbm(bud.pchrp_w)),
+        "Ptx": full(power_dbm(bud.ptx_w)),
+        "Psig": (
+            full(power_dbm(bud.psig_w))
+            if power_factor is None
+            else np.atleast_1d(power_dbm(bud.psig_w * np.asarray(power_factor, float)))
+        ),
         "Ne": full(power_dbm(noise.output_psd_w_per_hz(noise.amplifier))),
         "Ns": full(power_dbm(noise.output_psd_w_per_hz(noise.shot))),
         "Nt": full(power_dbm(noise.output_psd_w_per_hz(noise.thermal))),
-        "d_offset": full(bud.d_offset_m), "d_rx": np.asarray(d_rx, float),
-        "d_lo": np.asarray(d_lo, float), "d_hi": np.asarray(d_hi, float),
+        "d_offset": full(bud.d_offset_m),
+        "d_rx": np.asarray(d_rx, float),
+        "d_lo": np.asarray(d_lo, float),
+        "d_hi": np.asarray(d_hi, float),
         "d_error": range_m - np.asarray(d_rx, float),
-        "d_3dB": np.asarray(d_hi, float) - np.asarray(d_lo, float), "d_res": d_res,
+        "d_3dB": np.asarray(d_hi, float) - np.asarray(d_lo, float),
+        "d_res": d_res,
         # Zero received power: there is no signal to read, whatever the noise peak is.
         "Crx": np.full(n, -np.inf) if no_return else power_dbm(result.peak_power_w),
         "Navg": power_dbm(result.noise_psd_w_per_hz * config.processing.rbw_hz),
@@ -269,146 +321,103 @@ def assemble_outputs(config: Instrument, bud, result: PeakResult, noise, flags, 
         out["d_res"] = np.full(n, np.inf)
     out = {k: np.atleast_1d(v) for k, v in out.items()}
     out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
-    for key, value in (extra or {}).items():
+    out.update(_extra_outputs(extra or {}))
+    masks = unmeasured_masks(
+        config,
+        bud,
+        flags,
+        n,
+        power_factor=power_factor,
+        delay_offset_s=delay_offset_s,
+        nyquist_hz=nyquist_hz,
+    )
+    if any(np.any(m) for m in masks):
+        out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
+    return Measurements(tier, out, flags, _spectrum(result, config.processing.rbw_hz))
+
+
+def _resolution_m(bud, snr: np.ndarray) -> np.ndarray:
+    """The analytical range resolution c / (2 n B sqrt(2 SNR)) (m, eq. 2.2.2); inf at SNR 0."""
+    with np.errstate(divide="ignore"):
+        return np.where(
+            snr > 0,
+            SPEED_OF_LIGHT_M_S
+            / (2 * bud.group_index * bud.train.bandwidth_hz * np.sqrt(2 * np.maximum(snr, 1e-300))),
+            np.inf,
+        )
+
+
+def _extra_outputs(extra: dict) -> dict[str, np.ndarray]:
+    """A tier's extra per-shot outputs: ``*_w`` powers in dBm without the suffix, ``*_snr``
+    ratios as ``*_SNR`` in dB, the others as they are."""
+    out = {}
+    for key, value in extra.items():
         if key.endswith("_w"):
             out[key[:-2]] = np.atleast_1d(power_dbm(value))
         elif key.endswith("_snr"):
             out[key[:-4] + "_SNR"] = np.atleast_1d(ratio_db(value))
         else:
             out[key] = np.atleast_1d(value)
-    masks = unmeasured_masks(config, bud, flags, n, power_factor=power_factor,
-                             delay_offset_s=delay_offset_s, nyquist_hz=nyquist_hz)
-    if any(np.any(m) for m in masks):
-        out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
-    spectrum = None
-    if result.spectrum_f_hz is not None:
-        spectrum = {"f_hz": result.spectrum_f_hz, "psd_w_per_hz": result.spectrum_w_per_hz,
-                    "f_peak_hz": result.f_peak_hz, "f_lo_hz": result.f_lo_hz,
-                    "f_hi_hz": result.f_hi_hz, "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
-                    "rbw_hz": config.processing.rbw_hz}
-    return Measurements(tier, out, flags, spectrum)
+    return out
 
 
-def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
-    """Cross-correlation ranging for PN codes (thesis Fig. 2.3).
-
-    Returns a PeakResult whose ``f_peak_hz`` holds the lag in seconds (the caller converts), the
-    SNR as matched-filter peak power over the mean off-peak correlation power, and Crx as the
-    detected code power.
-    """
-    v = np.asarray(v).mean(axis=1) if proc.averaging == "coherent" else np.asarray(v)[:, 0]
-    n = v.shape[-1]
-    C = scipy.fft.irfft(scipy.fft.rfft(v, axis=-1) * np.conj(scipy.fft.rfft(ref)), n=n, axis=-1)
-    energy = float(np.sum(ref * ref))
-    lags, lo, hi, peak_w, noise_w, snr = (np.empty(v.shape[0]) for _ in range(6))
-    for b in range(v.shape[0]):
-        c2 = C[b] ** 2
-        k = int(np.argmax(c2))
-        d = _parabolic(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
-        lags[b] = (k + d) / fs
-        half = 0.5 * c2[k]
-        left = k
-        while c2[left - 1] >= half and k - left < n // 2:
-            left -= 1
-        right = k
-        while c2[(right + 1) % n] >= half and right - k < n // 2:
-            right += 1
-        lo[b], hi[b] = (left - 0.5) / fs, (right + 0.5) / fs
-        guard = np.ones(n, bool)
-        guard[np.arange(k - 8, k + 9) % n] = False
-        off = float(np.mean(c2[guard]))
-        snr[b] = c2[k] / off
-        amp = C[b, k] / energy
-        peak_w[b] = amp**2 * energy / n / load
-        noise_w[b] = peak_w[b] / snr[b] / proc.rbw_hz
-    return PeakResult(f_peak_hz=lags, peak_power_w=peak_w, noise_psd_w_per_hz=noise_w,
-                      f_lo_hz=lo, f_hi_hz=hi, snr=snr)
+def _spectrum(result: PeakResult, rbw_hz: float) -> dict | None:
+    """The spectrum a tier kept (``keep_spectrum``) with its peak and noise level, or None."""
+    if result.spectrum_f_hz is None:
+        return None
+    return {
+        "f_hz": result.spectrum_f_hz,
+        "psd_w_per_hz": result.spectrum_w_per_hz,
+        "f_peak_hz": result.f_peak_hz,
+        "f_lo_hz": result.f_lo_hz,
+        "f_hi_hz": result.f_hi_hz,
+        "noise_psd_w_per_hz": result.noise_psd_w_per_hz,
+        "rbw_hz": rbw_hz,
+    }
 
 
-def analyze_block(config, records: dict, load_ohm: float, flags: list, *, fs_hz: float, transfer,
-                  search_max_hz: float, keep_spectrum: bool, pn_reference=None,
-                  spectrum_analyzer=None) -> tuple[PeakResult, dict]:
-    """The receiver's processing of a block of shots, shared by the rf and baseband tiers:
-    optional squaring (Appendix D), PN correlation or spectrum peak analysis, the phase-diversity
-    arms' summed spectra. Returns the peak result and the extra per-shot outputs (the arms').
-
-    ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
-    ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
-    same keyword interface (the baseband tier's direct draw of power-averaged spectra).
-    """
-    proc, sysc = config.processing, config.system
-    extra = {}
-    analyze_main = spectrum_analyzer or analyze_records
-    kw = dict(rbw_hz=proc.rbw_hz, highpass_hz=proc.highpass_hz, zero_pad=proc.zero_pad_factor,
-              peak_method=proc.peak_method, noise_span_hz=proc.noise_span_hz,
-              noise_guard_hz=proc.noise_guard_hz, transfer=transfer, search_max_hz=search_max_hz)
-    squaring = proc.doppler_recovery == "squaring"
-    if squaring:
-        homodyne = sysc.receiver == "coherent" and sysc.coherent_mode == "homodyne"
-        if "main" not in records or not homodyne or sysc.modulation != "fm_chirp":
-            raise ValueError("processing.doppler_recovery = 'squaring' applies to the self-chirped "
-                             "homodyne FM receiver (thesis Appendix D)")
-        # y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift: search at 2 f_R.
-        y = records["main"]
-        records = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
-        if "squaring_recovery" not in flags:
-            flags.append("squaring_recovery")
-        kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
-        kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs_hz / 2)
-    if sysc.modulation == "pn_code":
-        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
-        return pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc), extra
-    if "main" in records:
-        result = analyze_main(records["main"], fs_hz, load_ohm, averaging=proc.averaging,
-                              keep_spectrum=keep_spectrum, **kw)
-    else:
-        r1 = analyze_records(records["arm1"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
-        r2 = analyze_records(records["arm2"], fs_hz, load_ohm, averaging=proc.averaging, **kw)
-        both = np.concatenate([records["arm1"], records["arm2"]], axis=1) if proc.averaging == "power" \
-            else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
-        result = analyze_records(both, fs_hz, load_ohm, averaging="power",
-                                 keep_spectrum=keep_spectrum, **kw)
-        # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
-        # report the sums; the SNR is unchanged.
-        extra.update({"arm1_Crx_w": r1.peak_power_w, "arm2_Crx_w": r2.peak_power_w,
-                      "arm1_snr": r1.snr, "arm2_snr": r2.snr})
-        result = dataclasses.replace(result, peak_power_w=2 * result.peak_power_w,
-                                     noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz)
-    if squaring:
-        # The line found is 2 f_R; its power and SNR are those of the squared record.
-        result = dataclasses.replace(result, f_peak_hz=result.f_peak_hz / 2,
-                                     f_lo_hz=result.f_lo_hz / 2, f_hi_hz=result.f_hi_hz / 2)
-    return result, extra
-
-
-def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResult, dict]:
-    """The :func:`analyze_block` results of consecutive blocks as one batch."""
-    if len(blocks) == 1:
-        return blocks[0]
-    results = [b[0] for b in blocks]
-    fields = {}
-    for f in dataclasses.fields(PeakResult):
-        parts = [getattr(r, f.name) for r in results]
-        if parts[0] is None or f.name == "spectrum_f_hz":
-            fields[f.name] = parts[0]
-        else:
-            fields[f.name] = np.concatenate([np.atleast_1d(p) for p in parts], axis=0)
-    extra = {k: np.concatenate([np.atleast_1d(b[1][k]) for b in blocks]) for k in blocks[0][1]}
-    return PeakResult(**fields), extra
-
-
-def finish_outputs(config: Instrument, bud, result: PeakResult, extra: dict, noise, flags,
-                   returns: Returns, *, tier: str, nyquist_hz=None,
-                   delay_offset_s=None) -> Measurements:
+def finish_outputs(
+    config: Instrument,
+    bud,
+    result: PeakResult,
+    extra: dict,
+    noise,
+    flags,
+    returns: Returns,
+    *,
+    tier: str,
+    nyquist_hz=None,
+    delay_offset_s=None,
+) -> Measurements:
     """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds);
     ``nyquist_hz``, ``delay_offset_s``: see :func:`assemble_outputs`."""
     if config.system.modulation == "pn_code":
-        return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
-                                tier=tier, lag_s=result.f_peak_hz, lag_lo_s=result.f_lo_hz,
-                                lag_hi_s=result.f_hi_hz, power_factor=returns.power_factor)
-    return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
-                            extra=extra, tier=tier, power_factor=returns.power_factor,
-                            nyquist_hz=nyquist_hz, delay_offset_s=delay_offset_s)
+        return assemble_outputs(
+            config,
+            bud,
+            result,
+            noise,
+            flags,
+            range_m=returns.range_m,
+            tier=tier,
+            lag_s=result.f_peak_hz,
+            lag_lo_s=result.f_lo_hz,
+            lag_hi_s=result.f_hi_hz,
+            power_factor=returns.power_factor,
+        )
+    return assemble_outputs(
+        config,
+        bud,
+        result,
+        noise,
+        flags,
+        range_m=returns.range_m,
+        extra=extra,
+        tier=tier,
+        power_factor=returns.power_factor,
+        nyquist_hz=nyquist_hz,
+        delay_offset_s=delay_offset_s,
+    )
 
 
 def echo_mean_offset_s(echo_arrays):
@@ -419,16 +428,3 @@ def echo_mean_offset_s(echo_arrays):
     offsets, weights = np.asarray(echo_arrays[0], float), np.asarray(echo_arrays[1], float)
     total = weights.sum(axis=-1)
     return np.sum(weights * offsets, axis=-1) / np.where(total > 0, total, 1.0)
-
-
-def process_records(config: Instrument, bud, records: dict, noise, load_ohm: float, flags: list,
-                    returns: Returns, *, fs_hz: float, transfer, search_max_hz: float,
-                    keep_spectrum: bool, tier: str, extra: dict | None = None, pn_reference=None,
-                    spectrum_analyzer=None, nyquist_hz=None, delay_offset_s=None) -> Measurements:
-    """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
-    further per-shot outputs to report)."""
-    result, arms = analyze_block(config, records, load_ohm, flags, fs_hz=fs_hz, transfer=transfer,
-                                 search_max_hz=search_max_hz, keep_spectrum=keep_spectrum,
-                                 pn_reference=pn_reference, spectrum_analyzer=spectrum_analyzer)
-    return finish_outputs(config, bud, result, {**(extra or {}), **arms}, noise, flags, returns,
-                          tier=tier, nyquist_hz=nyquist_hz, delay_offset_s=delay_offset_s)

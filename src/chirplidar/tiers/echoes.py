@@ -67,11 +67,14 @@ class Echoes:
             try:
                 arr = np.array(raw, dtype=np.float64)  # a copy: the caller may reuse its array
             except (TypeError, ValueError):
-                raise ValueError(f"echoes.{name} must be a real array of shape (batch, k) or (k,)"
-                                 ) from None
+                raise ValueError(
+                    f"echoes.{name} must be a real array of shape (batch, k) or (k,)"
+                ) from None
             if arr.ndim not in (1, 2) or arr.shape[-1] == 0:
-                raise ValueError(f"echoes.{name} must have shape (batch, k) or (k,) with k >= 1; "
-                                 f"got shape {arr.shape}")
+                raise ValueError(
+                    f"echoes.{name} must have shape (batch, k) or (k,) with k >= 1; "
+                    f"got shape {arr.shape}"
+                )
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"echoes.{name} must be finite (got NaN or inf)")
             ks.add(arr.shape[-1])
@@ -81,7 +84,9 @@ class Echoes:
             object.__setattr__(self, name, arr)
         shapes = ", ".join(f"{n} {getattr(self, n).shape}" for n in _FIELDS)
         if len(ks) > 1:
-            raise ValueError(f"echoes fields must share the number of echoes k (last axis); got {shapes}")
+            raise ValueError(
+                f"echoes fields must share the number of echoes k (last axis); got {shapes}"
+            )
         if len(rows) > 1:
             raise ValueError(f"echoes fields of shape (batch, k) must share batch; got {shapes}")
         w = self.power_weight
@@ -104,15 +109,18 @@ class Echoes:
         for name in _FIELDS:
             arr = getattr(self, name)
             if arr.ndim == 2 and arr.shape[0] != batch:
-                raise ValueError(f"echoes.{name} must have shape (batch, k) = ({batch}, {self.k}) "
-                                 f"or ({self.k},); got {arr.shape}")
+                raise ValueError(
+                    f"echoes.{name} must have shape (batch, k) = ({batch}, {self.k}) "
+                    f"or ({self.k},); got {arr.shape}"
+                )
             out.append(np.broadcast_to(arr, (batch, self.k)))
         offsets, w, phases = out
         return offsets, w / np.sum(w, axis=-1, keepdims=True), phases
 
 
-_GRAM_POINTS = 2048       # time grid of the footprint's coherence factor (over one record)
-_GRAM_BLOCK = 1 << 21     # shots x sub-rays x points per block
+_GRAM_POINTS = 2048  # time grid of the footprint's coherence factor (over one record)
+_GRAM_BLOCK = 1 << 21  # shots x sub-rays x points per block
+
 
 def chirp_overlap(config: Instrument, bud):
     """The record's overlap of the two chirps on a grid: (instantaneous frequency of the return
@@ -123,8 +131,11 @@ def chirp_overlap(config: Instrument, bud):
     dt = dur / _GRAM_POINTS
     t = (np.arange(_GRAM_POINTS) + 0.5) * dt
     tc_sig = train.time_in_chirp(t - bud.delay_s)
-    env = (train.envelope(train.time_in_chirp(t - bud.ref_delay_s)) * train.envelope(tc_sig)
-           * train.record_gate(t, dur))
+    env = (
+        train.envelope(train.time_in_chirp(t - bud.ref_delay_s))
+        * train.envelope(tc_sig)
+        * train.record_gate(t, dur)
+    )
     keep = env > 0
     if not np.any(keep):
         return np.zeros(0), np.zeros(0), 0.0
@@ -132,6 +143,7 @@ def chirp_overlap(config: Instrument, bud):
     chirps = max(1, int(np.floor(dur / train.period_s + 1e-9)))
     t_eq = float(a.sum() ** 2 / np.sum(a * a)) * dt / chirps
     return train.f_start_hz + train.rate_hz_per_s * tc_sig[keep], a, t_eq
+
 
 def footprint_coherence(config: Instrument, bud, amplitude, dtau_s) -> np.ndarray:
     """(m,) record energy of the common-phase beat sum_k a_k b_k(t) relative to one sub-ray's:
@@ -157,14 +169,16 @@ def footprint_coherence(config: Instrument, bud, amplitude, dtau_s) -> np.ndarra
     rows = max(1, _GRAM_BLOCK // (k * f.size))
     for s0 in range(0, m, rows):
         sl = slice(s0, min(m, s0 + rows))
-        ph = 2 * np.pi * (d[sl, :, None] - d[sl, :1, None]) * f[None, None, :]   # (r, k, p)
+        ph = 2 * np.pi * (d[sl, :, None] - d[sl, :1, None]) * f[None, None, :]  # (r, k, p)
         re = np.einsum("rk,rkp->rp", a[sl], np.cos(ph))
         im = np.einsum("rk,rkp->rp", a[sl], np.sin(ph))
         out[sl] = (re * re + im * im) @ a2
     return out
 
-_CELL_MARGIN = 3          # resolution cells beyond the footprint's extreme delays
-_CELL_FLOOR = 1e-3        # cells below this share of the strongest are left out (-30 dB)
+
+_CELL_MARGIN = 3  # resolution cells beyond the footprint's extreme delays
+_CELL_FLOOR = 1e-3  # cells below this share of the strongest are left out (-30 dB)
+
 
 def footprint_cells(config: Instrument, bud, share, dtau_s):
     """The mean (speckle-averaged) line of a footprint as echoes on the chirp's resolution grid:
@@ -186,14 +200,14 @@ def footprint_cells(config: Instrument, bud, share, dtau_s):
     m = w.shape[0]
     _, _, t_ov = chirp_overlap(config, bud)
     band = bud.train.rate_hz_per_s * t_ov
-    tbar = np.sum(w * d, axis=-1, keepdims=True)                       # (m, 1)
+    tbar = np.sum(w * d, axis=-1, keepdims=True)  # (m, 1)
     if band <= 0 or m == 0:
         return tbar, np.ones((m, 1))
     delta = 1.0 / band
     x = np.where(w > 0, (d - tbar) / delta, 0.0)
     lo = np.floor(x.min(axis=-1)).astype(int) - _CELL_MARGIN
     hi = np.ceil(x.max(axis=-1)).astype(int) + _CELL_MARGIN
-    j = lo[:, None] + np.arange(int(np.max(hi - lo)) + 1)                  # (m, J): per shot
+    j = lo[:, None] + np.arange(int(np.max(hi - lo)) + 1)  # (m, J): per shot
     cells = np.einsum("mk,mkj->mj", w, np.sinc(x[..., None] - j[:, None, :]) ** 2)
     cells = np.where(cells >= _CELL_FLOOR * cells.max(axis=-1, keepdims=True), cells, 0.0)
     # Each shot's cells in use first (a footprint split between two surfaces skips the gap).
@@ -202,6 +216,7 @@ def footprint_cells(config: Instrument, bud, share, dtau_s):
     j = np.take_along_axis(j, order, axis=-1)
     used = np.any(cells > 0, axis=0)
     return tbar + j[:, used] * delta, cells[:, used]
+
 
 def footprint_echoes(config: Instrument, bud, frac, dtau_s, fields=None):
     """A footprint's sub-rays as tier echoes: (delay_offset_s (m, J), power_weight (m, J),
@@ -216,7 +231,8 @@ def footprint_echoes(config: Instrument, bud, frac, dtau_s, fields=None):
     Sub-rays sample the footprint; they are not scatterers, so their optical path differences
     (2 k0 (R_k - R_l): thousands of wavelengths) must not interfere:
 
-    * ``fields`` (m, k) complex (speckle on, ``chirplidar.channel.footprint.subray_speckle_fields``): each sub-ray's patch
+    * ``fields`` (m, k) complex (speckle on,
+      ``chirplidar.channel.footprint.subray_speckle_fields``): each sub-ray's patch
       returns the field sqrt(w_k) z_k at its own delay. Echo weights w_k |z_k|^2, phases from
       arg z_k, gain sum_k w_k |z_k|^2 / sum_k w_k: an unresolved footprint's power is
       |sum_k sqrt(w_k) z_k|^2 (exponential of mean 1 for M = 1, circular Gaussian fields), a
@@ -234,7 +250,7 @@ def footprint_echoes(config: Instrument, bud, frac, dtau_s, fields=None):
     share = w / np.where(tot > 0, tot, 1.0)
     if fields is not None:
         z = np.asarray(fields)
-        pw = share * (z.real ** 2 + z.imag ** 2)
+        pw = share * (z.real**2 + z.imag**2)
         return np.asarray(dtau_s, float), pw, np.angle(z), pw.sum(axis=-1)
     delays, cells = footprint_cells(config, bud, share, dtau_s)
     a = np.sqrt(cells)

@@ -29,10 +29,15 @@ from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from ..units import SPEED_OF_LIGHT_M_S
+from .baseband_product import field_peak
 from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
-from .baseband import field_peak
-from .common import (assemble_outputs, detection_flags, doppler_line_hz, optimal_phase,
-                     peak_search_max_hz)
+from .common import (
+    assemble_outputs,
+    detection_flags,
+    doppler_line_hz,
+    optimal_phase,
+    peak_search_max_hz,
+)
 from .model import CarrierPhase, Instrument, Measurements, Returns
 from .registry import LINK_SUPPORTS
 
@@ -72,8 +77,9 @@ def crb_sigma_f_hz(snr, rbw_hz: float, duration_s):
 _FADING_BLOCK = 1 << 20  # shots x records per block of carrier-phase draws (8 MB per array)
 
 
-def carrier_fading_factor(config: Instrument, carrier_phase: CarrierPhase,
-                          rng: np.random.Generator, n: int) -> np.ndarray:
+def carrier_fading_factor(
+    config: Instrument, carrier_phase: CarrierPhase, rng: np.random.Generator, n: int
+) -> np.ndarray:
     """(n,) per-shot factors, mean 1, on the link tier's SNR for a uniformly random carrier phase.
 
     The balanced pair reads 2 R Im(E_LO E_s*): a record's beat power goes as sin^2(psi) (thesis eq.
@@ -98,8 +104,12 @@ def carrier_fading_factor(config: Instrument, carrier_phase: CarrierPhase,
     n = int(n)
     ones = np.ones(n)
     sysc, proc = config.system, config.processing
-    if (carrier_phase != "random" or sysc.receiver != "coherent"
-            or sysc.coherent_mode not in ("homodyne", "phase_diversity") or n == 0):
+    if (
+        carrier_phase != "random"
+        or sysc.receiver != "coherent"
+        or sysc.coherent_mode not in ("homodyne", "phase_diversity")
+        or n == 0
+    ):
         return ones
     k = int(proc.averages)
     p1, p2 = np.empty(n), np.empty(n)
@@ -158,14 +168,28 @@ def overlap_duration_s(config: Instrument, bud, lag_s, *, ref_delay_s: float = 0
     w_lo = train.envelope(np.mod(t - ref_delay_s, train.period_s)) * gate
     lags = np.atleast_1d(np.asarray(lag_s, float))
     out = np.empty(lags.shape)
-    for k, lag in enumerate(lags.ravel()):   # a few lags per call (the table's nodes)
+    for k, lag in enumerate(lags.ravel()):  # a few lags per call (the table's nodes)
         w_sig = train.envelope(np.mod(t - ref_delay_s - lag, train.period_s))
         out.flat[k] = max(float(np.mean(w_lo * w_sig > 0.25)), 1.0 / _GRID) * sim.duration_s
     return out.reshape(np.shape(lag_s))
 
 
-def simulate_link(config: Instrument, returns: Returns, rng: np.random.Generator, *,
-                  keep_spectrum: bool = False) -> Measurements:
+def _link_flags(
+    config: Instrument, bud, returns: Returns, mode: str, s_sig: float, resp, nyquist_hz: float
+) -> list[str]:
+    """The batch's detection flags, ``linewidth_beyond_link_tier`` and the balanced pair's
+    ``saturation``."""
+    flags = detection_flags(config, bud, returns, nyquist_hz=nyquist_hz)
+    if config.laser.linewidth_hz > LINK_MAX_LINEWIDTH_HZ:
+        flags.append("linewidth_beyond_link_tier")
+    if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
+        flags.append("saturation")
+    return flags
+
+
+def simulate_link(
+    config: Instrument, returns: Returns, rng: np.random.Generator, *, keep_spectrum: bool = False
+) -> Measurements:
     """The batch of ``returns`` through the closed-form link budget; arrays of shape (batch,)
     (``keep_spectrum`` is accepted and ignored: the link tier draws no spectrum)."""
     LINK_SUPPORTS.check("link", config, returns)
@@ -179,12 +203,8 @@ def simulate_link(config: Instrument, returns: Returns, rng: np.random.Generator
     s_sig = config.laser.power_w * bud.tx_gain * bud.h
     resp = responsivities(config, bud.nu_hz)
     mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
-    nyquist = sim.sample_rate_hz / 2   # the rf chain this closed form stands for samples at Fs
-    flags = detection_flags(config, bud, returns, nyquist_hz=nyquist)
-    if config.laser.linewidth_hz > LINK_MAX_LINEWIDTH_HZ:
-        flags.append("linewidth_beyond_link_tier")
-    if mode == "homodyne" and _saturates(config, bud, s_sig, resp, returns.power_factor):
-        flags.append("saturation")
+    nyquist = sim.sample_rate_hz / 2  # the rf chain this closed form stands for samples at Fs
+    flags = _link_flags(config, bud, returns, mode, s_sig, resp, nyquist)
     # Overlap time of the two chirps: sets the resolution and the frequency scatter below.
     # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
     t_ov = float(overlap_duration_s(config, bud, bud.lag_s, ref_delay_s=bud.ref_delay_s))
@@ -196,15 +216,19 @@ def simulate_link(config: Instrument, returns: Returns, rng: np.random.Generator
     if mode in ("homodyne", "phase_diversity"):
         phase_power = np.where(split, 0.25, _phase_power(returns, bud, mode))
         tone, noise, snr, noise_psd, h2, extra = _coherent_link(
-            config, bud, batch, mode, t, gate, w_sig, s_sig, resp, phase_power, split)
+            config, bud, batch, mode, t, gate, w_sig, s_sig, resp, phase_power, split
+        )
     else:
         # Direct and heterodyne chains filter before their nonlinearity or mixer: the detector
         # response is inside these closed forms, not applied at the beat frequency.
         h2 = 1.0
         chain = _heterodyne_link if mode == "heterodyne" else _direct_link
         tone, noise, snr, noise_psd = chain(config, bud, train, t, gate, w_sig, s_sig, resp)
-    if (proc.averaging == "coherent" and returns.carrier_phase != "random"
-            and config.laser.linewidth_hz == 0):
+    if (
+        proc.averaging == "coherent"
+        and returns.carrier_phase != "random"
+        and config.laser.linewidth_hz == 0
+    ):
         snr = snr * proc.averages  # a stable beat adds in amplitude, the noise in power
     # Speckle (or any effect on the received power) scales each shot's beat.
     tone = tone * returns.power_factor
@@ -214,18 +238,33 @@ def simulate_link(config: Instrument, returns: Returns, rng: np.random.Generator
     sigma_f = crb_sigma_f_hz(snr, proc.rbw_hz, t_ov)
     extra = {**extra, "t_overlap_s": np.full(batch, t_ov)}
     noise_draw = rng.standard_normal(batch)
-    f_meas = doppler_line_hz(config, bud, np.full(batch, bud.f_beat_hz),
-                             np.where(split, f_d, 0.0), rng) + sigma_f * noise_draw
+    f_meas = (
+        doppler_line_hz(config, bud, np.full(batch, bud.f_beat_hz), np.where(split, f_d, 0.0), rng)
+        + sigma_f * noise_draw
+    )
     if config.system.modulation == "fm_chirp":
         f_meas = _noise_peak_outside_band(config, bud, f_meas, sigma_f, rng)
     half_width = 0.443 / t_ov  # -3 dB half width of a rectangular-envelope tone
-    result = PeakResult(f_peak_hz=f_meas, peak_power_w=np.broadcast_to(tone * out_scale, (batch,)),
-                        noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
-                        f_lo_hz=f_meas - half_width, f_hi_hz=f_meas + half_width,
-                        snr=np.broadcast_to(np.asarray(snr, float), (batch,)))
-    return assemble_outputs(config, bud, result, noise, flags, range_m=returns.range_m,
-                            extra=extra, tier="link", power_factor=returns.power_factor,
-                            nyquist_hz=nyquist)
+    result = PeakResult(
+        f_peak_hz=f_meas,
+        peak_power_w=np.broadcast_to(tone * out_scale, (batch,)),
+        noise_psd_w_per_hz=np.full(batch, noise_psd * out_scale),
+        f_lo_hz=f_meas - half_width,
+        f_hi_hz=f_meas + half_width,
+        snr=np.broadcast_to(np.asarray(snr, float), (batch,)),
+    )
+    return assemble_outputs(
+        config,
+        bud,
+        result,
+        noise,
+        flags,
+        range_m=returns.range_m,
+        extra=extra,
+        tier="link",
+        power_factor=returns.power_factor,
+        nyquist_hz=nyquist,
+    )
 
 
 def _phase_power(returns: Returns, bud, mode: str):
@@ -236,23 +275,28 @@ def _phase_power(returns: Returns, bud, mode: str):
     cp = returns.carrier_phase
     if cp == "random":
         return np.full(returns.batch, 0.5)
-    psi = (optimal_phase(mode) if cp == "optimal"
-           else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+    psi = (
+        optimal_phase(mode)
+        if cp == "optimal"
+        else -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
+    )
     psi = psi + returns.phase_rad
     if mode == "phase_diversity":
         return np.cos(psi - np.angle(HYBRID_90[0, 0] * np.conj(HYBRID_90[0, 1]))) ** 2
     return np.sin(psi) ** 2
 
 
-def _coherent_link(config: Instrument, bud, batch: int, mode: str, t, gate, w_sig, s_sig, resp,
-                   phase_power, split):
+def _coherent_link(
+    config: Instrument, bud, batch: int, mode: str, t, gate, w_sig, s_sig, resp, phase_power, split
+):
     """The self-chirped coherent receivers' closed form: (tone, noise, SNR, noise PSD,
     |H(f_beat)|^2, extra outputs of the phase-diversity arms). ``split``: the shots whose
     Doppler shift the record resolves (each arm then holds a quarter of the power)."""
     b, proc, train = config.balanced, config.processing, bud.train
     bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
-    c_lo = mzm_fundamental_field(train, bias, vpi,
-                                 train.envelope(np.mod(t - bud.ref_delay_s, train.period_s)))
+    c_lo = mzm_fundamental_field(
+        train, bias, vpi, train.envelope(np.mod(t - bud.ref_delay_s, train.period_s))
+    )
     c_sig = mzm_fundamental_field(train, bias, vpi, w_sig)
     s_lo = bud.lo_power_scale(b.lo_power_w)
     # Beat of the two fields' fundamentals: (1/2) c_lo c_sig cos(phi_lo - phi_sig).
@@ -261,8 +305,9 @@ def _coherent_link(config: Instrument, bud, batch: int, mode: str, t, gate, w_si
     loss = coupler_field_transmission(config) ** 2
     env = env * loss
     S = COUPLER_3DB if mode == "homodyne" else HYBRID_90
-    mean_p = [loss * (abs(S[k, 0]) ** 2 * b.lo_power_w + abs(S[k, 1]) ** 2 * bud.psig_w)
-              for k in (0, 1)]
+    mean_p = [
+        loss * (abs(S[k, 0]) ** 2 * b.lo_power_w + abs(S[k, 1]) ** 2 * bud.psig_w) for k in (0, 1)
+    ]
     h2 = abs(single_pole(b.bandwidth_hz)(bud.f_beat_hz)) ** 2
     r1, r2 = resp["balanced_1"], resp["balanced_2"]
     if mode == "homodyne":
@@ -275,7 +320,8 @@ def _coherent_link(config: Instrument, bud, batch: int, mode: str, t, gate, w_si
             # the balanced pair only; the phase-diversity link leaves it out (known limits).
             r_mean = 0.5 * (r1 + r2)
             noise = dataclasses.replace(
-                noise, beat=4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz)
+                noise, beat=4 * r_mean**2 * loss**2 * b.lo_power_w * bud.h * bud.ase_psd_w_per_hz
+            )
         return tone, noise, tone / (noise.total * proc.rbw_hz), noise.total, h2, {}
     k01 = 2 * abs(HYBRID_90[0, 0] * HYBRID_90[0, 1])
     arm_snr, arm_tone = [], []
@@ -290,8 +336,12 @@ def _coherent_link(config: Instrument, bud, batch: int, mode: str, t, gate, w_si
     tone = sum(arm_tone)
     to_out = h2 * noise.gain_ohm**2 / noise.load_ohm
     each = lambda v: np.broadcast_to(np.asarray(v, float), (batch,))  # noqa: E731
-    extra = {"arm1_Crx_w": each(arm_tone[0] * to_out), "arm2_Crx_w": each(arm_tone[1] * to_out),
-             "arm1_snr": each(arm_snr[0]), "arm2_snr": each(arm_snr[1])}
+    extra = {
+        "arm1_Crx_w": each(arm_tone[0] * to_out),
+        "arm2_Crx_w": each(arm_tone[1] * to_out),
+        "arm1_snr": each(arm_snr[0]),
+        "arm2_snr": each(arm_snr[1]),
+    }
     return tone, noise, tone / (noise_psd * proc.rbw_hz), noise_psd, h2, extra
 
 
@@ -346,13 +396,18 @@ def _direct_link(config, bud, train, t, gate, w_sig, s_sig, resp):
         r, noise = resp["apd"], apd_noise(config, resp["apd"], bud.psig_w)
     if bud.ase_psd_w_per_hz > 0:
         # Signal-ASE beat: |E_s + n|^2 -> 2 Re(E_s n*), one-sided PSD 4 R^2 P_sig h S.
-        noise = dataclasses.replace(noise, beat=4 * r**2 * bud.psig_w * bud.h * bud.ase_psd_w_per_hz)
+        noise = dataclasses.replace(
+            noise, beat=4 * r**2 * bud.psig_w * bud.h * bud.ase_psd_w_per_hz
+        )
     p1 = mzm_power_fundamental(train, config.modulator.bias_v, config.modulator.v_pi_v, w_sig)
-    mix, w_ref, h_sig = _mixer_noise_factor(train, t, gate, bud.f_beat_hz, noise.bandwidth_hz,
-                                            bud.ref_delay_s)
+    mix, w_ref, h_sig = _mixer_noise_factor(
+        train, t, gate, bud.f_beat_hz, noise.bandwidth_hz, bud.ref_delay_s
+    )
     # The signal's instantaneous chirp frequency equals the reference's, delayed by the lag.
     tc_sig = np.mod(t - bud.delay_s, train.period_s)
-    h_at_sig = np.abs(single_pole(noise.bandwidth_hz)(train.f_start_hz + train.rate_hz_per_s * tc_sig))
+    h_at_sig = np.abs(
+        single_pole(noise.bandwidth_hz)(train.f_start_hz + train.rate_hz_per_s * tc_sig)
+    )
     beat = 0.5 * r * s_sig * p1 * h_at_sig * w_ref
     tone = 0.5 * np.mean(beat) ** 2
     noise_psd = noise.total * mix
@@ -372,15 +427,20 @@ def _heterodyne_link(config, bud, train, t, gate, w_sig, s_sig, resp):
     arms = 1 if h.capped_arm else 2
     loss = coupler_field_transmission(config) ** 2
     mean_p1 = 0.5 * loss * (b.lo_power_w + bud.psig_w)
-    noise = balanced_noise(config, r, r, mean_p1, mean_p1 if arms == 2 else 0.0,
-                           arm=0 if arms == 1 else None)
+    noise = balanced_noise(
+        config, r, r, mean_p1, mean_p1 if arms == 2 else 0.0, arm=0 if arms == 1 else None
+    )
     alpha, beta = mzm_drive_angles(train, bias, vpi)
     if h.demodulation == "envelope":
         # Fundamental of |cos(alpha + beta w sin phi)| over phi, per envelope value.
         phi = np.linspace(0, 2 * np.pi, 256, endpoint=False)
         wg = np.linspace(0, 1, 65)
-        fund = np.array([abs(2 * np.mean(np.abs(np.cos(alpha + beta * w * np.sin(phi))) * np.sin(phi)))
-                         for w in wg])
+        fund = np.array(
+            [
+                abs(2 * np.mean(np.abs(np.cos(alpha + beta * w * np.sin(phi))) * np.sin(phi)))
+                for w in wg
+            ]
+        )
         c = np.interp(w_sig, wg, fund)
     else:
         c = mzm_fundamental_field(train, bias, vpi, w_sig)

@@ -36,13 +36,18 @@ import numpy as np
 from ..doppler import doppler_shift_hz
 from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
 from .common import doppler_line_hz, optimal_phase
-from .link import (carrier_fading_factor, crb_sigma_f_hz, overlap_duration_s, simulate_link,
-                   static_phase_factor)
+from .link import (
+    carrier_fading_factor,
+    crb_sigma_f_hz,
+    overlap_duration_s,
+    simulate_link,
+    static_phase_factor,
+)
 from .model import CarrierPhase, Instrument, Returns
 
-_RANGE_STEP = 0.01        # relative node spacing in range
-_ATT_STEP_DB = 3.0        # node spacing in attenuation
-_ATT_SPAN_DB = 90.0       # below the strongest shot by more than this: SNR extrapolated
+_RANGE_STEP = 0.01  # relative node spacing in range
+_ATT_STEP_DB = 3.0  # node spacing in attenuation
+_ATT_SPAN_DB = 90.0  # below the strongest shot by more than this: SNR extrapolated
 
 
 @dataclass(frozen=True)
@@ -57,8 +62,14 @@ class SurveyPath:
     carrier_phase: CarrierPhase
 
 
-def node_returns(instrument: Instrument, path: SurveyPath, range_m: float, attenuation_db: float,
-                 lag_s: float | None = None, doppler_hz: float = 0.0) -> Returns:
+def node_returns(
+    instrument: Instrument,
+    path: SurveyPath,
+    range_m: float,
+    attenuation_db: float,
+    lag_s: float | None = None,
+    doppler_hz: float = 0.0,
+) -> Returns:
     """One node: the reference target at ``range_m`` behind ``attenuation_db``, the reference
     delayed so that tau - tau_ref = ``lag_s`` (a node nearer than the lag reads the lag it can),
     else by the instrument's own rule."""
@@ -69,9 +80,18 @@ def node_returns(instrument: Instrument, path: SurveyPath, range_m: float, atten
     h = float(db_to_ratio(-attenuation_db) * path.reference_fraction(range_m))
     # A node's own propagation phase would be arbitrary: the optimum, or the mean ("random").
     phase = "random" if path.carrier_phase == "random" else "optimal"
-    return Returns(transmission=h, delay_s=delay, range_m=range_m, group_index=path.group_index,
-                   power_factor=1.0, phase_rad=0.0, doppler_hz=doppler_hz, carrier_phase=phase,
-                   reference_delay_s=ref, batch=1)
+    return Returns(
+        transmission=h,
+        delay_s=delay,
+        range_m=range_m,
+        group_index=path.group_index,
+        power_factor=1.0,
+        phase_rad=0.0,
+        doppler_hz=doppler_hz,
+        carrier_phase=phase,
+        reference_delay_s=ref,
+        batch=1,
+    )
 
 
 def interp_table(x_nodes, y_nodes, table, x, y):
@@ -93,24 +113,34 @@ def interp_table(x_nodes, y_nodes, table, x, y):
     return a * (1 - fx) + c * fx
 
 
-def link_table(instrument: Instrument, path: SurveyPath, r_lo, r_hi, a_lo, a_hi, doppler: bool,
-               lag_s: float | None = None):
+def link_table(
+    instrument: Instrument,
+    path: SurveyPath,
+    r_lo,
+    r_hi,
+    a_lo,
+    a_hi,
+    doppler: bool,
+    lag_s: float | None = None,
+):
     """SNR [dB] on (range, attenuation) nodes and T_ov [s] per range node, plus the SNR factor
     of a resolved Doppler split, from the link tier's closed form. ``lag_s``: every node's
     tau - tau_ref (a range window's centre); None: the instrument's reference delay."""
     n_r = 1 if r_hi <= r_lo else int(min(33, np.ceil(np.log(r_hi / r_lo) / _RANGE_STEP) + 1))
     r_nodes = np.geomspace(r_lo, r_hi, n_r) if n_r > 1 else np.array([r_lo])
     a0 = np.floor(a_lo / _ATT_STEP_DB) * _ATT_STEP_DB
-    a1 = max(np.ceil(min(a_hi, a_lo + _ATT_SPAN_DB) / _ATT_STEP_DB) * _ATT_STEP_DB,
-             a0 + _ATT_STEP_DB)
+    a1 = max(
+        np.ceil(min(a_hi, a_lo + _ATT_SPAN_DB) / _ATT_STEP_DB) * _ATT_STEP_DB, a0 + _ATT_STEP_DB
+    )
     a_nodes = np.arange(a0, a1 + 0.5 * _ATT_STEP_DB, _ATT_STEP_DB)
     snr_db = np.empty((n_r, a_nodes.size))
     t_ov = np.empty(n_r)
     rng = np.random.default_rng(0)  # the nodes' own draws are not used (SNR is deterministic)
     for i, r in enumerate(r_nodes):  # tens of closed-form evaluations per chunk, not per shot
         for j, a in enumerate(a_nodes):
-            out = simulate_link(instrument, node_returns(instrument, path, float(r), float(a),
-                                                         lag_s), rng)
+            out = simulate_link(
+                instrument, node_returns(instrument, path, float(r), float(a), lag_s), rng
+            )
             snr_db[i, j] = out["SNR"][0]
         t_ov[i] = out["t_overlap_s"][0]
     split = 1.0
@@ -139,21 +169,37 @@ def overlap_at(instrument: Instrument, bud, lag_s) -> np.ndarray:
     return np.interp(lag_s, grid, t_grid) if grid.size > 1 else np.full(np.shape(lag_s), t_grid[0])
 
 
-def static_phase(instrument: Instrument, carrier_phase: CarrierPhase, bud, delay_s,
-                 ref_delay_s) -> np.ndarray:
+def static_phase(
+    instrument: Instrument, carrier_phase: CarrierPhase, bud, delay_s, ref_delay_s
+) -> np.ndarray:
     """Per-shot static carrier phase [rad] of the setting "optimal" (the receiver's optimum) or
     "propagation" (-2 pi nu (tau - tau_ref) of each shot's own mean delay: a moving platform's
     range changes by many wavelengths from shot to shot)."""
     delay_s = np.asarray(delay_s, float)
     if carrier_phase == "propagation":
         return -2 * np.pi * np.mod(bud.nu_hz * (delay_s - ref_delay_s), 1.0)
-    return np.full(delay_s.shape, optimal_phase(instrument.receiver_kind
-                                                if instrument.system.receiver == "coherent"
-                                                else "direct"))
+    return np.full(
+        delay_s.shape,
+        optimal_phase(
+            instrument.receiver_kind if instrument.system.receiver == "coherent" else "direct"
+        ),
+    )
 
 
-def unread_nodes(instrument: Instrument, path: SurveyPath, bud, unread, snr, t_ov, split, r_m,
-                 att_db, lag_s, no_overlap, doppler: bool):
+def unread_nodes(
+    instrument: Instrument,
+    path: SurveyPath,
+    bud,
+    unread,
+    snr,
+    t_ov,
+    split,
+    r_m,
+    att_db,
+    lag_s,
+    no_overlap,
+    doppler: bool,
+):
     """(SNR, T_ov, Doppler split factor) per shot, for shots whose table interpolation met a
     node without a tone (its own lag has no chirp overlap: SNR 0, or no LO), instead of a
     sentinel dB value: nodes at one lag with overlap (the median of these shots' own) and each
@@ -167,12 +213,19 @@ def unread_nodes(instrument: Instrument, path: SurveyPath, bud, unread, snr, t_o
     split_u = np.ones(t_shot.shape)
     tone = ~no_overlap[unread]
     if instrument.system.receiver == "coherent" and instrument.balanced.lo_power_w <= 0:
-        tone[:] = False   # no LO: nothing to beat with
+        tone[:] = False  # no LO: nothing to beat with
     if np.any(tone):
         r_u, a_u = r_m[unread], att_db[unread]
         r_nodes, a_nodes, table, t_nodes, split_n = link_table(
-            instrument, path, float(r_u.min()), float(r_u.max()), float(a_u.min()),
-            float(a_u.max()), doppler, float(np.median(lag_s[unread][tone])))
+            instrument,
+            path,
+            float(r_u.min()),
+            float(r_u.max()),
+            float(a_u.min()),
+            float(a_u.max()),
+            doppler,
+            float(np.median(lag_s[unread][tone])),
+        )
         s = db_to_ratio(interp_table(r_nodes, a_nodes, table, r_u[tone], a_u[tone]))
         s = s * (t_shot[tone] / np.interp(r_u[tone], r_nodes, t_nodes)) ** 2
         snr_u[tone] = np.where(np.isfinite(s), s, 0.0)
@@ -190,14 +243,30 @@ class ShotStreams:
     sideband: np.random.Generator
 
 
-def mean_snr(instrument: Instrument, path: SurveyPath, bud, range_m, att_db, lag_s, no_overlap,
-             doppler: bool, window_lag_s: float | None):
+def mean_snr(
+    instrument: Instrument,
+    path: SurveyPath,
+    bud,
+    range_m,
+    att_db,
+    lag_s,
+    no_overlap,
+    doppler: bool,
+    window_lag_s: float | None,
+):
     """(SNR, T_ov [s], Doppler split factor) per shot from the table: at the nodes' carrier
     phase, before fading and footprint spread. ``window_lag_s``: the range window's centre lag
     (the nodes' lag; each shot's own overlap then scales its tone), or None."""
     r_nodes, a_nodes, table, t_nodes, split = link_table(
-        instrument, path, float(range_m.min()), float(range_m.max()), float(att_db.min()),
-        float(att_db.max()), doppler, window_lag_s)
+        instrument,
+        path,
+        float(range_m.min()),
+        float(range_m.max()),
+        float(att_db.min()),
+        float(att_db.max()),
+        doppler,
+        window_lag_s,
+    )
     snr = db_to_ratio(interp_table(r_nodes, a_nodes, table, range_m, att_db))
     t_ov = np.interp(range_m, r_nodes, t_nodes)
     if window_lag_s is not None:
@@ -208,22 +277,50 @@ def mean_snr(instrument: Instrument, path: SurveyPath, bud, range_m, att_db, lag
         t_ov = t_shot
     unread = ~np.isfinite(snr)
     if np.any(unread):
-        snr, t_ov, split = unread_nodes(instrument, path, bud, unread, snr, t_ov, split, range_m,
-                                        att_db, lag_s, no_overlap, doppler)
+        snr, t_ov, split = unread_nodes(
+            instrument,
+            path,
+            bud,
+            unread,
+            snr,
+            t_ov,
+            split,
+            range_m,
+            att_db,
+            lag_s,
+            no_overlap,
+            doppler,
+        )
     return snr, t_ov, split
 
 
-def survey_shots(instrument: Instrument, path: SurveyPath, bud, streams: ShotStreams, *,
-                 range_m, range_std_m, att_db, delay_s, ref_delay_s, lag_s, f_beat_hz,
-                 no_overlap, phase_rad, doppler_hz, doppler: bool,
-                 window_lag_s: float | None) -> dict:
+def survey_shots(
+    instrument: Instrument,
+    path: SurveyPath,
+    bud,
+    streams: ShotStreams,
+    *,
+    range_m,
+    range_std_m,
+    att_db,
+    delay_s,
+    ref_delay_s,
+    lag_s,
+    f_beat_hz,
+    no_overlap,
+    phase_rad,
+    doppler_hz,
+    doppler: bool,
+    window_lag_s: float | None,
+) -> dict:
     """The link tier's measurements of a chunk's shots with a return (arrays (m,)): ``snr``
     (linear, 0 for no tone), ``f_meas_hz`` (the peak found), ``t_eff_s`` (the broadened tone's
     duration) and ``width_hz`` (its 3 dB width). Inputs per shot: power-weighted mean range and
     its spread, attenuation relative to the reference target, delay, reference delay, lag,
     beat, no-overlap mask, the effects' carrier phase (speckle) and Doppler shift."""
-    snr, t_ov, split = mean_snr(instrument, path, bud, range_m, att_db, lag_s, no_overlap,
-                                doppler, window_lag_s)
+    snr, t_ov, split = mean_snr(
+        instrument, path, bud, range_m, att_db, lag_s, no_overlap, doppler, window_lag_s
+    )
     resolved = np.abs(doppler_hz) >= 1.0 / t_ov
     # Carrier fading about the nodes' mean phase power, or each shot's static phase (with the
     # speckle field's phase, when that effect is on) about the optimum; a resolved Doppler
@@ -231,8 +328,10 @@ def survey_shots(instrument: Instrument, path: SurveyPath, bud, streams: ShotStr
     if path.carrier_phase == "random":
         fade = carrier_fading_factor(instrument, path.carrier_phase, streams.fading, snr.size)
     else:
-        fade = static_phase_factor(instrument, static_phase(instrument, path.carrier_phase, bud,
-                                                            delay_s, ref_delay_s) + phase_rad)
+        fade = static_phase_factor(
+            instrument,
+            static_phase(instrument, path.carrier_phase, bud, delay_s, ref_delay_s) + phase_rad,
+        )
     snr = np.where(resolved, snr * split, snr * fade)
     # Footprint spread: a broadened line of width ratio g (module docstring).
     sigma_f = bud.rate_hz_per_s * 2.0 * path.group_index * range_std_m / SPEED_OF_LIGHT_M_S
@@ -240,8 +339,9 @@ def survey_shots(instrument: Instrument, path: SurveyPath, bud, streams: ShotStr
     snr = snr / g
     t_eff = t_ov / g
     noise = streams.noise.standard_normal(snr.shape)
-    line = doppler_line_hz(instrument, bud, f_beat_hz, np.where(resolved, doppler_hz, 0.0),
-                           streams.sideband)
+    line = doppler_line_hz(
+        instrument, bud, f_beat_hz, np.where(resolved, doppler_hz, 0.0), streams.sideband
+    )
     f_meas = line + crb_sigma_f_hz(snr, instrument.processing.rbw_hz, t_eff) * noise
     # 0.886 / t_eff: the 3 dB width of a rectangular-envelope tone of duration t_eff.
     return {"snr": snr, "f_meas_hz": f_meas, "t_eff_s": t_eff, "width_hz": 0.886 / t_eff}

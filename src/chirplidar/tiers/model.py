@@ -24,8 +24,9 @@ from functools import cached_property
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ..waveform import waveform_from_config
+from ..waveform import Waveform, waveform_from_config
 from .echoes import Echoes
 
 CarrierPhase = Literal["optimal", "random", "propagation"]
@@ -78,7 +79,7 @@ class Instrument:
     fiber: FiberAcceptance | None = None
 
     @cached_property
-    def train(self):
+    def train(self) -> Waveform:
         """The drive waveform (:class:`~chirplidar.waveform.ChirpTrain` or ``PNTrain``)."""
         return waveform_from_config(self)
 
@@ -95,7 +96,7 @@ class Instrument:
         return str(self.system.receiver)
 
 
-def _per_shot(name: str, value, batch: int) -> np.ndarray:
+def _per_shot(name: str, value: ArrayLike, batch: int) -> np.ndarray:
     arr = np.array(np.broadcast_to(np.asarray(value, dtype=np.float64), (batch,)))
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"returns.{name} must be finite (got NaN or inf)")
@@ -103,7 +104,7 @@ def _per_shot(name: str, value, batch: int) -> np.ndarray:
     return arr
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Returns:
     """What reaches the receiver, for a batch of shots.
 
@@ -135,25 +136,53 @@ class Returns:
     carrier_phase: CarrierPhase = "optimal"
     echoes: Echoes | None = None
     reference_delay_s: float | None = None
-    batch: int = field(default=0)
+    batch: int = 0
 
-    def __post_init__(self):
-        batch = self.batch or int(np.size(self.power_factor))
+    # Written out (not generated) so that the per-shot fields take any array-like and are
+    # stored as arrays; dataclasses.replace calls it with every field.
+    def __init__(
+        self,
+        transmission: float,
+        delay_s: float,
+        range_m: float,
+        group_index: float,
+        power_factor: ArrayLike,
+        phase_rad: ArrayLike,
+        doppler_hz: ArrayLike,
+        carrier_phase: CarrierPhase = "optimal",
+        echoes: Echoes | None = None,
+        reference_delay_s: float | None = None,
+        batch: int = 0,
+    ) -> None:
+        batch = batch or int(np.size(power_factor))
         if batch < 1:
             raise ValueError("returns: a batch needs at least one shot")
-        object.__setattr__(self, "batch", batch)
-        for name in ("power_factor", "phase_rad", "doppler_hz"):
-            object.__setattr__(self, name, _per_shot(name, getattr(self, name), batch))
-        for name in ("transmission", "delay_s", "range_m", "group_index"):
-            value = float(getattr(self, name))
-            if not np.isfinite(value):
-                raise ValueError(f"returns.{name} must be finite (got {value})")
-            object.__setattr__(self, name, value)
-        if self.transmission < 0 or np.any(self.power_factor < 0):
+        per_shot = {"power_factor": power_factor, "phase_rad": phase_rad, "doppler_hz": doppler_hz}
+        values: dict[str, Any] = {"batch": batch}
+        for name, value in per_shot.items():
+            values[name] = _per_shot(name, value, batch)
+        scalars = {
+            "transmission": transmission,
+            "delay_s": delay_s,
+            "range_m": range_m,
+            "group_index": group_index,
+        }
+        for name, value in scalars.items():
+            values[name] = float(value)
+            if not np.isfinite(values[name]):
+                raise ValueError(f"returns.{name} must be finite (got {values[name]})")
+        if values["transmission"] < 0 or np.any(values["power_factor"] < 0):
             raise ValueError("returns.transmission and returns.power_factor must be >= 0")
-        if self.echoes is not None and not isinstance(self.echoes, Echoes):
-            raise ValueError(f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
-                             f"got {type(self.echoes).__name__}")
+        if echoes is not None and not isinstance(echoes, Echoes):
+            raise ValueError(
+                f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
+                f"got {type(echoes).__name__}"
+            )
+        values.update(
+            carrier_phase=carrier_phase, echoes=echoes, reference_delay_s=reference_delay_s
+        )
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
 
     def echo_arrays(self):
         """(delay_offset_s, normalised power weight, phase_rad), each (batch, k), or None."""
@@ -170,12 +199,12 @@ class Measurements(Mapping):
 
     def __init__(self, tier: str, values: Mapping[str, np.ndarray], flags, spectrum=None):
         self.tier = tier
-        self.values = dict(values)
+        self.arrays = dict(values)
         self.flags = tuple(flags)
         self.spectrum = spectrum
 
     def _items(self) -> dict:
-        out: dict[str, Any] = dict(self.values)
+        out: dict[str, Any] = dict(self.arrays)
         out["flags"] = list(self.flags)
         out["tier"] = self.tier
         if self.spectrum is not None:
@@ -189,7 +218,7 @@ class Measurements(Mapping):
             return self.tier
         if key == "spectrum" and self.spectrum is not None:
             return self.spectrum
-        return self.values[key]
+        return self.arrays[key]
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._items())
@@ -198,7 +227,9 @@ class Measurements(Mapping):
         return len(self._items())
 
     def __repr__(self) -> str:
-        return f"Measurements(tier={self.tier!r}, keys={list(self.values)}, flags={list(self.flags)})"
+        return (
+            f"Measurements(tier={self.tier!r}, keys={list(self.arrays)}, flags={list(self.flags)})"
+        )
 
 
 class UnsupportedError(ValueError):
@@ -224,20 +255,25 @@ class Supports:
             raise UnsupportedError(
                 f"the {tier} tier models system.modulation = {modelled} only; "
                 f"{self.hint.get('modulation', '')}system.modulation = {sysc.modulation!r}"
-                + (" (sys.MxMode = PN)" if sysc.modulation == "pn_code" else ""))
+                + (" (sys.MxMode = PN)" if sysc.modulation == "pn_code" else "")
+            )
         kind = instrument.receiver_kind
         if kind not in self.receivers:
             raise UnsupportedError(
                 f"the {tier} tier models the receivers {', '.join(sorted(self.receivers))}; "
                 f"{self.hint.get('receiver', '')}system.receiver = {sysc.receiver!r}, "
-                f"coherent_mode = {sysc.coherent_mode!r}")
+                f"coherent_mode = {sysc.coherent_mode!r}"
+            )
         if proc.doppler_recovery not in self.doppler_recovery:
             raise UnsupportedError(
                 f"processing.doppler_recovery = {proc.doppler_recovery!r} is not modelled by the "
-                f"{tier} tier; {self.hint.get('doppler_recovery', '')}".rstrip("; "))
+                f"{tier} tier; {self.hint.get('doppler_recovery', '')}".rstrip("; ")
+            )
         if returns is not None and returns.echoes is not None and not self.echoes:
-            raise UnsupportedError(f"the {tier} tier takes no footprint echoes (a survey "
-                                   "broadens its line in closed form)")
+            raise UnsupportedError(
+                f"the {tier} tier takes no footprint echoes (a survey "
+                "broadens its line in closed form)"
+            )
 
 
 class Tier(Protocol):
@@ -253,5 +289,11 @@ class Tier(Protocol):
 
     def check(self, instrument: Instrument, returns: Returns | None = None) -> None: ...
 
-    def simulate(self, instrument: Instrument, returns: Returns, rng: np.random.Generator, *,
-                 keep_spectrum: bool = False) -> Measurements: ...
+    def simulate(
+        self,
+        instrument: Instrument,
+        returns: Returns,
+        rng: np.random.Generator,
+        *,
+        keep_spectrum: bool = False,
+    ) -> Measurements: ...

@@ -15,20 +15,34 @@ from .model import Instrument, Measurements, Returns, Supports
 
 _ALL_RECEIVERS = frozenset({"homodyne", "phase_diversity", "heterodyne", "pin", "apd"})
 
-RF_SUPPORTS = Supports(receivers=_ALL_RECEIVERS, modulations=frozenset({"fm_chirp", "pn_code"}),
-                       doppler_recovery=frozenset({"none", "squaring"}), echoes=True)
+RF_SUPPORTS = Supports(
+    receivers=_ALL_RECEIVERS,
+    modulations=frozenset({"fm_chirp", "pn_code"}),
+    doppler_recovery=frozenset({"none", "squaring"}),
+    echoes=True,
+)
 BASEBAND_SUPPORTS = Supports(
-    receivers=frozenset({"homodyne", "phase_diversity"}), modulations=frozenset({"fm_chirp"}),
-    doppler_recovery=frozenset({"none"}), echoes=True,
-    hint={"modulation": "use --tier rf for ",
-          "receiver": "direct and heterodyne detection run in the rf and link tiers: ",
-          "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
-                              "the baseband record does not hold"})
+    receivers=frozenset({"homodyne", "phase_diversity"}),
+    modulations=frozenset({"fm_chirp"}),
+    doppler_recovery=frozenset({"none"}),
+    echoes=True,
+    hint={
+        "modulation": "use --tier rf for ",
+        "receiver": "direct and heterodyne detection run in the rf and link tiers: ",
+        "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
+        "the baseband record does not hold",
+    },
+)
 LINK_SUPPORTS = Supports(
-    receivers=_ALL_RECEIVERS, modulations=frozenset({"fm_chirp"}),
-    doppler_recovery=frozenset({"none"}), echoes=False,
-    hint={"modulation": "use --tier rf for ",
-          "doppler_recovery": "use --tier rf: its noise penalty has no closed form here"})
+    receivers=_ALL_RECEIVERS,
+    modulations=frozenset({"fm_chirp"}),
+    doppler_recovery=frozenset({"none"}),
+    echoes=False,
+    hint={
+        "modulation": "use --tier rf for ",
+        "doppler_recovery": "use --tier rf: its noise penalty has no closed form here",
+    },
+)
 
 
 @dataclass(frozen=True)
@@ -38,28 +52,49 @@ class RegisteredTier:
     name: str
     summary: str
     supports: Supports
-    module: str        # chirplidar.tiers.<module>
-    function: str      # its simulate(instrument, returns, rng, *, keep_spectrum) function
+    module: str  # chirplidar.tiers.<module>
+    function: str  # its simulate(instrument, returns, rng, *, keep_spectrum) function
 
     def check(self, instrument: Instrument, returns: Returns | None = None) -> None:
         """Raise :class:`~chirplidar.tiers.model.UnsupportedError` for what it does not model."""
         self.supports.check(self.name, instrument, returns)
 
-    def simulate(self, instrument: Instrument, returns: Returns, rng: np.random.Generator, *,
-                 keep_spectrum: bool = False) -> Measurements:
+    def simulate(
+        self,
+        instrument: Instrument,
+        returns: Returns,
+        rng: np.random.Generator,
+        *,
+        keep_spectrum: bool = False,
+    ) -> Measurements:
         self.check(instrument, returns)
         fn = getattr(importlib.import_module(f"chirplidar.tiers.{self.module}"), self.function)
         return fn(instrument, returns, rng, keep_spectrum=keep_spectrum)
 
 
 TIERS: dict[str, RegisteredTier] = {
-    "rf": RegisteredTier("rf", "full-rate time-domain chain of thesis Ch. 4 (the reference)",
-                         RF_SUPPORTS, "rf", "simulate_rf"),
-    "baseband": RegisteredTier("baseband", "the dechirped beat generated at the detector's "
-                               "output rate (self-chirped coherent receivers)",
-                               BASEBAND_SUPPORTS, "baseband", "simulate_baseband"),
-    "link": RegisteredTier("link", "closed-form link budget with a Cramer-Rao range draw "
-                           "(campaigns)", LINK_SUPPORTS, "link", "simulate_link"),
+    "rf": RegisteredTier(
+        "rf",
+        "full-rate time-domain chain of thesis Ch. 4 (the reference)",
+        RF_SUPPORTS,
+        "rf",
+        "simulate_rf",
+    ),
+    "baseband": RegisteredTier(
+        "baseband",
+        "the dechirped beat generated at the detector's "
+        "output rate (self-chirped coherent receivers)",
+        BASEBAND_SUPPORTS,
+        "baseband",
+        "simulate_baseband",
+    ),
+    "link": RegisteredTier(
+        "link",
+        "closed-form link budget with a Cramer-Rao range draw (campaigns)",
+        LINK_SUPPORTS,
+        "link",
+        "simulate_link",
+    ),
 }
 TIER_NAMES: tuple[str, ...] = tuple(TIERS)
 

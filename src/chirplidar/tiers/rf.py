@@ -20,13 +20,23 @@ import scipy.fft
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, current_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
-from ..transmitter import mzm_field, wiener_phase
 from ..streams import child_stream
-from .budget import (Budget, coupler_field_transmission, if_half_width_hz, make_budget,
-                     responsivities)
-from .common import (detection_flags, echo_mean_offset_s, optimal_phase, peak_search_max_hz,
-                     process_records)
+from ..transmitter import mzm_field, wiener_phase
+from .budget import (
+    Budget,
+    coupler_field_transmission,
+    if_half_width_hz,
+    make_budget,
+    responsivities,
+)
+from .common import (
+    detection_flags,
+    echo_mean_offset_s,
+    optimal_phase,
+    peak_search_max_hz,
+)
 from .model import Instrument, Measurements, Returns
+from .records import process_records
 
 
 def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
@@ -37,8 +47,16 @@ def _lowpass(x: np.ndarray, bandwidth_hz: float, fs_hz: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _modulator_fields(train, bias_v: float, v_pi_v: float, n: int, fs_hz: float, duration_s: float,
-                      delay_s: float, ref_delay_s: float):
+def _modulator_fields(
+    train,
+    bias_v: float,
+    v_pi_v: float,
+    n: int,
+    fs_hz: float,
+    duration_s: float,
+    delay_s: float,
+    ref_delay_s: float,
+):
     """Deterministic per instrument and geometry: the MZM field of the signal (delayed by tau) and of
     the LO / reference (delayed by tau_ref) on the record grid, and the record gate. Cached because a
     run or a sweep of attenuation, detector or seed reuses them shot after shot (read-only arrays)."""
@@ -55,8 +73,18 @@ def _modulator_fields(train, bias_v: float, v_pi_v: float, n: int, fs_hz: float,
     return t, a_sig, a_lo, gate, products
 
 
-def _echo_envelope(train, bias_v: float, v_pi_v: float, t: np.ndarray, bud: Budget, fs_hz: float,
-                   upsample: int, offsets: np.ndarray, weights: np.ndarray, phases: np.ndarray):
+def _echo_envelope(
+    train,
+    bias_v: float,
+    v_pi_v: float,
+    t: np.ndarray,
+    bud: Budget,
+    fs_hz: float,
+    upsample: int,
+    offsets: np.ndarray,
+    weights: np.ndarray,
+    phases: np.ndarray,
+):
     """|A| and arg A of A(t) = sum_k sqrt(w_k) exp(j phi_k) a(t - tau - dtau_k), shape (batch, 1, N).
 
     ``offsets``, ``weights`` (normalised) and ``phases`` have shape (batch, k); a is the MZM field
@@ -66,13 +94,13 @@ def _echo_envelope(train, bias_v: float, v_pi_v: float, t: np.ndarray, bud: Budg
     """
     batch, k = offsets.shape
     shared = bool(np.all(offsets == offsets[:1]))
-    delays = bud.delay_s + (offsets[:1] if shared else offsets)        # (1 or batch, k)
+    delays = bud.delay_s + (offsets[:1] if shared else offsets)  # (1 or batch, k)
     if bud.quantized:
         # delay_method = 'resample' emulates the upxn grid: every echo lands on it too.
         q = 1.0 / (fs_hz * upsample)
         delays = np.round(delays / q) * q
     coef = np.sqrt(weights)
-    c_re, c_im = coef * np.cos(phases), coef * np.sin(phases)          # (batch, k)
+    c_re, c_im = coef * np.cos(phases), coef * np.sin(phases)  # (batch, k)
     if shared:
         # Echo fields (k, N), mixed per shot by a matrix product: one BLAS pass, no (batch, N)
         # temporaries per echo.
@@ -84,13 +112,13 @@ def _echo_envelope(train, bias_v: float, v_pi_v: float, t: np.ndarray, bud: Budg
         re = np.zeros((batch, t.size))
         im = np.zeros((batch, t.size))
         for j in range(k):
-            a = mzm_field(bias_v + train.voltage(t - delays[:, j, None]), v_pi_v)   # (batch, N)
+            a = mzm_field(bias_v + train.voltage(t - delays[:, j, None]), v_pi_v)  # (batch, N)
             re += c_re[:, j, None] * a
             im += c_im[:, j, None] * a
     arg = np.arctan2(im, re)
     mag = re * re
     mag += im * im
-    np.sqrt(mag, out=mag)        # |A| (values ~1: no need for hypot's overflow guard)
+    np.sqrt(mag, out=mag)  # |A| (values ~1: no need for hypot's overflow guard)
     return mag[:, None, :], arg[:, None, :]
 
 
@@ -114,14 +142,23 @@ def _grid(config: Instrument, bud: Budget, batch: int) -> _Grid:
     fs = sim.sample_rate_hz
     # gate: no partial chirps, the rest of the record is zero.
     t, a_sig, a_lo, gate, products = _modulator_fields(
-        bud.train, config.modulator.bias_v, config.modulator.v_pi_v, config.n_samples, fs,
-        sim.duration_s, bud.delay_s, bud.ref_delay_s)
-    return _Grid(t, a_sig, a_lo, gate, products,
-                 (batch, config.processing.averages, config.n_samples), fs)
+        bud.train,
+        config.modulator.bias_v,
+        config.modulator.v_pi_v,
+        config.n_samples,
+        fs,
+        sim.duration_s,
+        bud.delay_s,
+        bud.ref_delay_s,
+    )
+    return _Grid(
+        t, a_sig, a_lo, gate, products, (batch, config.processing.averages, config.n_samples), fs
+    )
 
 
-def simulate_rf(config: Instrument, returns: Returns, rng: np.random.Generator, *,
-                keep_spectrum: bool = False) -> Measurements:
+def simulate_rf(
+    config: Instrument, returns: Returns, rng: np.random.Generator, *, keep_spectrum: bool = False
+) -> Measurements:
     """Simulate the batch of ``returns`` through the full-rate chain; arrays of shape (batch,).
 
     With ``returns.echoes`` each shot's return is the coherent sum of k delayed echoes of its
@@ -136,22 +173,47 @@ def simulate_rf(config: Instrument, returns: Returns, rng: np.random.Generator, 
     load = transfer = None
     if mode in ("homodyne", "phase_diversity"):
         simple = sig.noise is None and config.laser.linewidth_hz == 0 and returns.echoes is None
-        records, noise, load, transfer = _coherent(config, bud, grid, rng, mode, sig, th_lo,
-                                                   -psi - dop_phase, s_sig, flags, simple)
+        records, noise, load, transfer = _coherent(
+            config, bud, grid, rng, mode, sig, th_lo, -psi - dop_phase, s_sig, flags, simple
+        )
     elif mode == "heterodyne":
-        records, noise, load = _heterodyne(config, bud, rng, sig, grid.t, grid.shape,
-                                           responsivities(config, bud.nu_hz), grid.gate,
-                                           th_sig + dop_phase, psi)
+        records, noise, load = _heterodyne(
+            config,
+            bud,
+            rng,
+            sig,
+            grid.t,
+            grid.shape,
+            responsivities(config, bud.nu_hz),
+            grid.gate,
+            th_sig + dop_phase,
+            psi,
+        )
     else:
-        records, noise, load = _direct(config, bud, rng, sig, grid.t, grid.shape,
-                                       responsivities(config, bud.nu_hz), grid.gate)
-    pn_reference = (bud.train.unit(grid.t - bud.ref_delay_s)
-                    if config.system.modulation == "pn_code" else None)
-    return process_records(config, bud, records, noise, load, flags, returns, fs_hz=grid.fs,
-                           transfer=transfer, search_max_hz=peak_search_max_hz(config, bud),
-                           keep_spectrum=keep_spectrum, tier="rf", extra={},
-                           pn_reference=pn_reference, nyquist_hz=grid.fs / 2,
-                           delay_offset_s=echo_mean_offset_s(returns.echo_arrays()))
+        records, noise, load = _direct(
+            config, bud, rng, sig, grid.t, grid.shape, responsivities(config, bud.nu_hz), grid.gate
+        )
+    pn_reference = (
+        bud.train.unit(grid.t - bud.ref_delay_s) if config.system.modulation == "pn_code" else None
+    )
+    return process_records(
+        config,
+        bud,
+        records,
+        noise,
+        load,
+        flags,
+        returns,
+        fs_hz=grid.fs,
+        transfer=transfer,
+        search_max_hz=peak_search_max_hz(config, bud),
+        keep_spectrum=keep_spectrum,
+        tier="rf",
+        extra={},
+        pn_reference=pn_reference,
+        nyquist_hz=grid.fs / 2,
+        delay_offset_s=echo_mean_offset_s(returns.echo_arrays()),
+    )
 
 
 def _laser_phase_noise(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator):
@@ -162,14 +224,27 @@ def _laser_phase_noise(config: Instrument, bud: Budget, grid: _Grid, rng: np.ran
     if lw <= 0:
         zero = np.zeros((batch, k_avg, 1))
         return zero, zero
-    th_lo, th_sig = (th.reshape(grid.shape) for th in wiener_phase(
-        [grid.t - bud.ref_delay_s, grid.t - bud.delay_s], lw,
-        child_stream(rng, "effect.phase_noise"), batch * k_avg))
+    th_lo, th_sig = (
+        th.reshape(grid.shape)
+        for th in wiener_phase(
+            [grid.t - bud.ref_delay_s, grid.t - bud.delay_s],
+            lw,
+            child_stream(rng, "effect.phase_noise"),
+            batch * k_avg,
+        )
+    )
     return th_lo, th_sig
 
 
-def _signal_field(config: Instrument, returns: Returns, bud: Budget, grid: _Grid,
-                  rng: np.random.Generator, mode: str, th_sig):
+def _signal_field(
+    config: Instrument,
+    returns: Returns,
+    bud: Budget,
+    grid: _Grid,
+    rng: np.random.Generator,
+    mode: str,
+    th_sig,
+):
     """The received signal's :class:`Field` (a point target or the echoes' sum, with the
     transmitter's ASE), its static carrier phase psi relative to the LO, the Doppler phase ramp
     and the per-shot power scale |E_s|^2. Draws the random carrier phase, then the ASE."""
@@ -179,13 +254,14 @@ def _signal_field(config: Instrument, returns: Returns, bud: Budget, grid: _Grid
     if cp == "random":
         psi = rng.uniform(0.0, 2 * np.pi, (batch, k_avg, 1))
     elif cp == "propagation":
-        psi = np.full((batch, k_avg, 1),
-                      -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0))
+        psi = np.full(
+            (batch, k_avg, 1), -2 * np.pi * np.mod(bud.nu_hz * (bud.delay_s - bud.ref_delay_s), 1.0)
+        )
     else:
         psi = np.full((batch, k_avg, 1), optimal_phase(mode))
-    psi = psi + returns.phase_rad.reshape(per_shot)              # speckle phase
-    s_sig = config.laser.power_w * bud.tx_gain * bud.h       # |E_s|^2 scale: mean = Psig
-    s_sig = s_sig * returns.power_factor.reshape(per_shot)      # speckle power
+    psi = psi + returns.phase_rad.reshape(per_shot)  # speckle phase
+    s_sig = config.laser.power_w * bud.tx_gain * bud.h  # |E_s|^2 scale: mean = Psig
+    s_sig = s_sig * returns.power_factor.reshape(per_shot)  # speckle power
     doppler = returns.doppler_hz.reshape(per_shot)
     # Carrier Doppler shift of the return (a phase ramp); absent unless the effect is enabled.
     dop_phase = 2 * np.pi * doppler * grid.t if np.any(doppler != 0) else 0.0
@@ -195,20 +271,42 @@ def _signal_field(config: Instrument, returns: Returns, bud: Budget, grid: _Grid
         ase = sigma * (rng.standard_normal(grid.shape) + 1j * rng.standard_normal(grid.shape))
     echo_arrays = returns.echo_arrays()
     if echo_arrays is None:
-        return Field(np.sqrt(s_sig) * grid.a_sig, th_sig + psi + dop_phase, ase), psi, \
-            dop_phase, s_sig
+        return (
+            Field(np.sqrt(s_sig) * grid.a_sig, th_sig + psi + dop_phase, ase),
+            psi,
+            dop_phase,
+            s_sig,
+        )
     # The echoes' sum is a complex, time-varying envelope: Field keeps a real amplitude and a
     # phase, so it holds |A| and arg A. Laser phase noise: every echo takes the main delay's
     # Wiener phase th_sig. Echoes dtau apart differ in phase noise by a variance of
     # 2 pi linewidth |dtau| (2 pi x 100 kHz x 10 ns = 6e-3 rad^2): negligible.
-    mag, arg = _echo_envelope(bud.train, config.modulator.bias_v, config.modulator.v_pi_v,
-                              grid.t, bud, grid.fs, config.simulation.upsample_factor,
-                              *echo_arrays)
+    mag, arg = _echo_envelope(
+        bud.train,
+        config.modulator.bias_v,
+        config.modulator.v_pi_v,
+        grid.t,
+        bud,
+        grid.fs,
+        config.simulation.upsample_factor,
+        *echo_arrays,
+    )
     return Field(np.sqrt(s_sig) * mag, arg + th_sig + psi + dop_phase, ase), psi, dop_phase, s_sig
 
 
-def _coherent(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator, mode: str,
-              sig: Field, th_lo, lo_phase, s_sig, flags: list, simple: bool):
+def _coherent(
+    config: Instrument,
+    bud: Budget,
+    grid: _Grid,
+    rng: np.random.Generator,
+    mode: str,
+    sig: Field,
+    th_lo,
+    lo_phase,
+    s_sig,
+    flags: list,
+    simple: bool,
+):
     """Balanced homodyne or phase-diversity detection: (records, noise, load, transfer).
     ``lo_phase`` = -psi - Doppler phase; ``simple``: no phase noise, ASE or echoes, so the
     currents are fixed mixes of the three cached products."""
@@ -222,12 +320,14 @@ def _coherent(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Gener
         # A balanced pair's LO and signal power terms cancel in the coefficients.
         cf = [port_coefficients(S[k, 0], S[k, 1], s_lo, s_sig, lo_phase) for k in (0, 1)]
         means = [float(np.mean(a)) for a in grid.products]
-        mean_p = [float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means))))
-                  for k in (0, 1)]
+        mean_p = [
+            float(np.mean(sum(np.asarray(c) * m for c, m in zip(cf[k], means, strict=True))))
+            for k in (0, 1)
+        ]
         arm = [[r1 * c for c in cf[0]], [r2 * c for c in cf[1]]]
         if mode == "homodyne":
-            diff = combine([x - y for x, y in zip(*arm)], grid.products)
-            total = combine([x + y for x, y in zip(*arm)], grid.products)
+            diff = combine([x - y for x, y in zip(*arm, strict=True)], grid.products)
+            total = combine([x + y for x, y in zip(*arm, strict=True)], grid.products)
         else:
             i1, i2 = combine(arm[0], grid.products), combine(arm[1], grid.products)
     else:
@@ -240,27 +340,37 @@ def _coherent(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Gener
     diff_peak = float(np.max(np.abs(diff))) / (0.5 * (r1 + r2)) if mode == "homodyne" else 0.0
     if diff_peak > b.saturation_power_w:
         flags.append("saturation")
-        warnings.warn(f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
-                      f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
-                      stacklevel=3)
+        warnings.warn(
+            f"balanced detector amplifier saturates: differential {diff_peak * 1e3:.3g} mW"
+            f" > balanced.saturation_power_w = {b.saturation_power_w * 1e3:.3g} mW",
+            stacklevel=3,
+        )
     noise_any = balanced_noise(config, r1, r2, *mean_p)
     load, z, fs = b.output_impedance_ohm, b.transimpedance_ohm, grid.fs
     transfer = single_pole(b.bandwidth_hz)
     if mode == "homodyne":
         # The two photodiodes' shot noises and the circuit noise are independent Gaussians:
         # one draw with the summed variance has the same distribution.
-        i = current_noise(rng, grid.shape, total, 2 * dark,
-                          noise_any.thermal + noise_any.amplifier, fs)
+        i = current_noise(
+            rng, grid.shape, total, 2 * dark, noise_any.thermal + noise_any.amplifier, fs
+        )
         i += diff
         i *= z
         return {"main": i if grid.gate.size == 1 else i * grid.gate}, noise_any, load, transfer
     arms = []
     for idx, ik in enumerate((i1, i2)):
         nz = balanced_noise(config, r1, r2, *mean_p, arm=idx)
-        arms.append(z * (ik + current_noise(rng, grid.shape, ik, dark, nz.thermal + nz.amplifier,
-                                            fs)) * grid.gate)
-    return ({"arm1": arms[0], "arm2": arms[1]}, balanced_noise(config, r1, r2, *mean_p, arm=0),
-            load, transfer)
+        arms.append(
+            z
+            * (ik + current_noise(rng, grid.shape, ik, dark, nz.thermal + nz.amplifier, fs))
+            * grid.gate
+        )
+    return (
+        {"arm1": arms[0], "arm2": arms[1]},
+        balanced_noise(config, r1, r2, *mean_p, arm=0),
+        load,
+        transfer,
+    )
 
 
 def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
@@ -280,8 +390,14 @@ def _direct(config, bud: Budget, rng, sig: Field, t, shape, resp, gate):
         noise = apd_noise(config, resp["apd"], bud.psig_w)
         # Multiplied shot noise with excess factor F, referred to the primary photocurrent.
         f_ex = a.excess_noise_factor
-        i_n = i + current_noise(rng, shape, f_ex * i, f_ex * (a.solar_current_a + a.background_current_a)
-                            + a.leakage_current_a / a.gain**2, noise.thermal + noise.amplifier, fs)
+        i_n = i + current_noise(
+            rng,
+            shape,
+            f_ex * i,
+            f_ex * (a.solar_current_a + a.background_current_a) + a.leakage_current_a / a.gain**2,
+            noise.thermal + noise.amplifier,
+            fs,
+        )
     v = noise.gain_ohm * _lowpass(i_n, noise.bandwidth_hz, fs)
     if config.system.modulation == "pn_code":
         return {"main": v * gate}, noise, noise.load_ohm
@@ -296,8 +412,11 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
     fs = config.simulation.sample_rate_hz
     b, h = config.balanced, config.heterodyne
     f_lo = b.lo_offset_hz
-    th_lo = (wiener_phase([t], b.lo_linewidth_hz, rng, shape[0] * shape[1])[0].reshape(shape)
-             if b.lo_linewidth_hz > 0 else np.zeros((shape[0], shape[1], 1)))
+    th_lo = (
+        wiener_phase([t], b.lo_linewidth_hz, rng, shape[0] * shape[1])[0].reshape(shape)
+        if b.lo_linewidth_hz > 0
+        else np.zeros((shape[0], shape[1], 1))
+    )
     lo = Field(np.full(t.shape, np.sqrt(b.lo_power_w)), 2 * np.pi * f_lo * t + th_lo)
     S = COUPLER_3DB * coupler_field_transmission(config)
     p1 = port_power(S[0, 0], S[0, 1], lo, sig)
@@ -311,7 +430,9 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
         p2 = port_power(S[1, 0], S[1, 1], lo, sig)
         i = r * (p1 - p2)
         noise = balanced_noise(config, r, r, float(np.mean(p1)), float(np.mean(p2)))
-        i_n = i + current_noise(rng, shape, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs)
+        i_n = i + current_noise(
+            rng, shape, r * (p1 + p2), 2 * dark, noise.thermal + noise.amplifier, fs
+        )
     # IF band-pass around f_LO and complex envelope (analytic signal shifted down by f_LO).
     n = t.size
     half = if_half_width_hz(config, bud)
@@ -327,8 +448,9 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
         # With footprint echoes there is no single carrier phase: it locks to the phase of the
         # echoes' sum correlated with the main delay's envelope (rot below).
         d = z * np.exp(1j * (th_sig - th_lo + psi))
-        a_ref = mzm_field(config.modulator.bias_v + bud.train.voltage(t - bud.delay_s),
-                          config.modulator.v_pi_v)
+        a_ref = mzm_field(
+            config.modulator.bias_v + bud.train.voltage(t - bud.delay_s), config.modulator.v_pi_v
+        )
         rot = np.sum(d * a_ref, axis=-1, keepdims=True)
         base = np.real(d * np.exp(-1j * np.angle(rot)))
     ref = bud.train.unit(t - bud.ref_delay_s)

@@ -1,0 +1,241 @@
+"""A batch of records through the receiver's processing, shared by the rf and baseband tiers:
+squaring (Appendix D), PN correlation (Fig. 2.3) or the spectrum's peak, the phase-diversity
+arms; then the Table 4.10 outputs (:func:`~chirplidar.tiers.common.finish_outputs`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.fft
+
+from ..processing import analyze_records
+from ..processing.spectrum import PeakResult, _parabolic
+from .common import finish_outputs
+from .model import Instrument, Measurements, Returns
+
+
+def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
+    """Cross-correlation ranging for PN codes (thesis Fig. 2.3).
+
+    Returns a PeakResult whose ``f_peak_hz`` holds the lag in seconds (the caller converts), the
+    SNR as matched-filter peak power over the mean off-peak correlation power, and Crx as the
+    detected code power.
+    """
+    v = np.asarray(v).mean(axis=1) if proc.averaging == "coherent" else np.asarray(v)[:, 0]
+    n = v.shape[-1]
+    C = scipy.fft.irfft(scipy.fft.rfft(v, axis=-1) * np.conj(scipy.fft.rfft(ref)), n=n, axis=-1)
+    energy = float(np.sum(ref * ref))
+    lags, lo, hi, peak_w, noise_w, snr = (np.empty(v.shape[0]) for _ in range(6))
+    for b in range(v.shape[0]):
+        c2 = C[b] ** 2
+        k = int(np.argmax(c2))
+        d = _parabolic(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
+        lags[b] = (k + d) / fs
+        half = 0.5 * c2[k]
+        left = k
+        while c2[left - 1] >= half and k - left < n // 2:
+            left -= 1
+        right = k
+        while c2[(right + 1) % n] >= half and right - k < n // 2:
+            right += 1
+        lo[b], hi[b] = (left - 0.5) / fs, (right + 0.5) / fs
+        guard = np.ones(n, bool)
+        guard[np.arange(k - 8, k + 9) % n] = False
+        off = float(np.mean(c2[guard]))
+        snr[b] = c2[k] / off
+        amp = C[b, k] / energy
+        peak_w[b] = amp**2 * energy / n / load
+        noise_w[b] = peak_w[b] / snr[b] / proc.rbw_hz
+    return PeakResult(
+        f_peak_hz=lags,
+        peak_power_w=peak_w,
+        noise_psd_w_per_hz=noise_w,
+        f_lo_hz=lo,
+        f_hi_hz=hi,
+        snr=snr,
+    )
+
+
+def _squared_records(config, records: dict, flags: list, kw: dict, fs_hz: float) -> dict:
+    """Doppler recovery by squaring (thesis Appendix D): the records squared, their mean
+    removed; y^2 holds (1/4) cos(2 w_B t), independent of the Doppler shift, so the search
+    band in ``kw`` moves to 2 f_R. Adds the ``squaring_recovery`` flag."""
+    proc, sysc = config.processing, config.system
+    homodyne = sysc.receiver == "coherent" and sysc.coherent_mode == "homodyne"
+    if "main" not in records or not homodyne or sysc.modulation != "fm_chirp":
+        raise ValueError(
+            "processing.doppler_recovery = 'squaring' applies to the self-chirped "
+            "homodyne FM receiver (thesis Appendix D)"
+        )
+    y = records["main"]
+    squared = {"main": y * y - np.mean(y * y, axis=-1, keepdims=True)}
+    if "squaring_recovery" not in flags:
+        flags.append("squaring_recovery")
+    kw["highpass_hz"] = 2 * max(proc.highpass_hz, proc.doppler_max_hz)
+    kw["search_max_hz"] = min(2 * kw["search_max_hz"], fs_hz / 2)
+    return squared
+
+
+def _analyze_arms(
+    records: dict,
+    fs_hz: float,
+    load_ohm: float,
+    averaging: str,
+    keep_spectrum: bool,
+    kw: dict,
+    extra: dict,
+) -> PeakResult:
+    """The phase-diversity arms: each arm's peak (into ``extra``: ``arm1_Crx_w``, ``arm1_snr``,
+    ...) and the peak of their summed spectra."""
+    r1 = analyze_records(records["arm1"], fs_hz, load_ohm, averaging=averaging, **kw)
+    r2 = analyze_records(records["arm2"], fs_hz, load_ohm, averaging=averaging, **kw)
+    both = (
+        np.concatenate([records["arm1"], records["arm2"]], axis=1)
+        if averaging == "power"
+        else np.stack([records["arm1"].mean(axis=1), records["arm2"].mean(axis=1)], axis=1)
+    )
+    result = analyze_records(
+        both, fs_hz, load_ohm, averaging="power", keep_spectrum=keep_spectrum, **kw
+    )
+    # Power averaging halves the sum of the arms' spectra (thesis Fig. 5.13 sums them):
+    # report the sums; the SNR is unchanged.
+    extra.update(
+        {
+            "arm1_Crx_w": r1.peak_power_w,
+            "arm2_Crx_w": r2.peak_power_w,
+            "arm1_snr": r1.snr,
+            "arm2_snr": r2.snr,
+        }
+    )
+    return dataclasses.replace(
+        result,
+        peak_power_w=2 * result.peak_power_w,
+        noise_psd_w_per_hz=2 * result.noise_psd_w_per_hz,
+    )
+
+
+def analyze_block(
+    config,
+    records: dict,
+    load_ohm: float,
+    flags: list,
+    *,
+    fs_hz: float,
+    transfer,
+    search_max_hz: float,
+    keep_spectrum: bool,
+    pn_reference=None,
+    spectrum_analyzer=None,
+) -> tuple[PeakResult, dict]:
+    """The receiver's processing of a block of shots, shared by the rf and baseband tiers:
+    optional squaring (Appendix D), PN correlation or spectrum peak analysis, the phase-diversity
+    arms' summed spectra. Returns the peak result and the extra per-shot outputs (the arms').
+
+    ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
+    ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
+    same keyword interface (the baseband tier's direct draw of power-averaged spectra).
+    """
+    proc, sysc = config.processing, config.system
+    extra: dict[str, np.ndarray] = {}
+    analyze_main = spectrum_analyzer or analyze_records
+    kw = dict(
+        rbw_hz=proc.rbw_hz,
+        highpass_hz=proc.highpass_hz,
+        zero_pad=proc.zero_pad_factor,
+        peak_method=proc.peak_method,
+        noise_span_hz=proc.noise_span_hz,
+        noise_guard_hz=proc.noise_guard_hz,
+        transfer=transfer,
+        search_max_hz=search_max_hz,
+    )
+    squaring = proc.doppler_recovery == "squaring"
+    if squaring:
+        records = _squared_records(config, records, flags, kw, fs_hz)
+    if sysc.modulation == "pn_code":
+        # PN ranging: cross-correlate the detected code with the reference code (Fig. 2.3).
+        return pn_peak(records["main"], pn_reference, fs_hz, load_ohm, proc), extra
+    if "main" in records:
+        result = analyze_main(
+            records["main"],
+            fs_hz,
+            load_ohm,
+            averaging=proc.averaging,
+            keep_spectrum=keep_spectrum,
+            **kw,
+        )
+    else:
+        result = _analyze_arms(records, fs_hz, load_ohm, proc.averaging, keep_spectrum, kw, extra)
+    if squaring:
+        # The line found is 2 f_R; its power and SNR are those of the squared record.
+        result = dataclasses.replace(
+            result,
+            f_peak_hz=result.f_peak_hz / 2,
+            f_lo_hz=result.f_lo_hz / 2,
+            f_hi_hz=result.f_hi_hz / 2,
+        )
+    return result, extra
+
+
+def concatenate_blocks(blocks: list[tuple[PeakResult, dict]]) -> tuple[PeakResult, dict]:
+    """The :func:`analyze_block` results of consecutive blocks as one batch."""
+    if len(blocks) == 1:
+        return blocks[0]
+    results = [b[0] for b in blocks]
+    fields = {}
+    for f in dataclasses.fields(PeakResult):
+        parts = [getattr(r, f.name) for r in results]
+        if parts[0] is None or f.name == "spectrum_f_hz":
+            fields[f.name] = parts[0]
+        else:
+            fields[f.name] = np.concatenate([np.atleast_1d(p) for p in parts], axis=0)
+    extra = {k: np.concatenate([np.atleast_1d(b[1][k]) for b in blocks]) for k in blocks[0][1]}
+    return PeakResult(**fields), extra
+
+
+def process_records(
+    config: Instrument,
+    bud,
+    records: dict,
+    noise,
+    load_ohm: float,
+    flags: list,
+    returns: Returns,
+    *,
+    fs_hz: float,
+    transfer,
+    search_max_hz: float,
+    keep_spectrum: bool,
+    tier: str,
+    extra: dict | None = None,
+    pn_reference=None,
+    spectrum_analyzer=None,
+    nyquist_hz=None,
+    delay_offset_s=None,
+) -> Measurements:
+    """:func:`analyze_block` then :func:`finish_outputs` for one batch of records (``extra``:
+    further per-shot outputs to report)."""
+    result, arms = analyze_block(
+        config,
+        records,
+        load_ohm,
+        flags,
+        fs_hz=fs_hz,
+        transfer=transfer,
+        search_max_hz=search_max_hz,
+        keep_spectrum=keep_spectrum,
+        pn_reference=pn_reference,
+        spectrum_analyzer=spectrum_analyzer,
+    )
+    return finish_outputs(
+        config,
+        bud,
+        result,
+        {**(extra or {}), **arms},
+        noise,
+        flags,
+        returns,
+        tier=tier,
+        nyquist_hz=nyquist_hz,
+        delay_offset_s=delay_offset_s,
+    )
