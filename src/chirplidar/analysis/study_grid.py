@@ -221,7 +221,9 @@ def axis_coordinate(axis: VaryAxis) -> tuple[np.ndarray, str]:
     """(coordinate values, 'number' | 'string') of an axis: numbers as float64 (int64 when all
     are integers), one-element numeric lists as their number, anything else as its TOML text."""
     vals = axis.values
-    num = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)
+    def num(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
     if all(num(v) for v in vals):
         if all(isinstance(v, int) for v in vals):
             return np.array(vals, dtype=np.int64), "number"

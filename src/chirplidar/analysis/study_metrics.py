@@ -260,7 +260,9 @@ def point_metrics(path, *, detection_threshold_db: float, cell_m: float | None =
                            np.where(np.isfinite(pw_b), pw_b, _NEG_SENTINEL))
 
             s_vals, p_vals = order_statistics(blocks, [snr_ranks, pow_ranks])
-            back = lambda v: -math.inf if v == _NEG_SENTINEL else v
+            def back(v):
+                return -math.inf if v == _NEG_SENTINEL else v
+
             snr_at = {r: back(v) for r, v in zip(snr_ranks, s_vals)}
             pow_at = {r: back(v) for r, v in zip(pow_ranks, p_vals)}
         for name, (lo, hi, g) in snr_q.items():

@@ -78,7 +78,7 @@ def _dirichlet_kernel(n: int) -> np.ndarray:
     return kern
 
 
-def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
+def parabolic_vertex(y_m1: float, y0: float, y_p1: float) -> float:
     """Vertex offset of the parabola through three equally spaced points (in steps)."""
     den = y_m1 - 2.0 * y0 + y_p1
     if den >= 0 or not np.isfinite(den):
@@ -87,7 +87,7 @@ def _parabolic(y_m1: float, y0: float, y_p1: float) -> float:
 
 
 def _parabolic_batch(y_m1, y0, y_p1):
-    """Vectorised :func:`_parabolic` (same rule: no vertex unless the parabola opens downward)."""
+    """Vectorised :func:`parabolic_vertex` (no vertex unless the parabola opens downward)."""
     den = y_m1 - 2.0 * y0 + y_p1
     ok = (den < 0) & np.isfinite(den)
     d = 0.5 * (y_m1 - y_p1) / np.where(ok, den, -1.0)

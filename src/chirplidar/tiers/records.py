@@ -10,7 +10,7 @@ import numpy as np
 import scipy.fft
 
 from ..processing import analyze_records
-from ..processing.spectrum import PeakResult, _parabolic
+from ..processing.spectrum import PeakResult, parabolic_vertex
 from .common import finish_outputs
 from .model import Instrument, Measurements, Returns
 
@@ -30,7 +30,7 @@ def pn_peak(v: np.ndarray, ref: np.ndarray, fs: float, load: float, proc):
     for b in range(v.shape[0]):
         c2 = C[b] ** 2
         k = int(np.argmax(c2))
-        d = _parabolic(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
+        d = parabolic_vertex(*np.log(np.maximum(c2[[k - 1, k, (k + 1) % n]], 1e-300)))
         lags[b] = (k + d) / fs
         half = 0.5 * c2[k]
         left = k

@@ -274,7 +274,7 @@ def draw_grid(ax, grid, var, legend, colorbars) -> None:
     from matplotlib.patches import Patch
 
     xe, ye, values, attrs, dtype = grid_layer(grid, var)
-    integer = bool(np.issubdtype(dtype, np.integer) or dtype == bool)
+    integer = bool(np.issubdtype(dtype, np.integer) or dtype == np.bool_)
     # one-byte integers and bools are flags (the grid's covered, in_region); counts are int32
     flags = _flag_table(attrs, values.filled(np.nan), integer and dtype.itemsize == 1)
     if flags is not None:
