@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo thesis-demo test test-slow bench clean
+.PHONY: install demo sensitivity test test-slow bench clean
 
 install: $(STAMP)
 
@@ -23,8 +23,8 @@ demo: install
 	    --out outputs/greenland_uav_coverage.nc --png outputs/greenland_uav_coverage.png
 
 # Thesis Fig. 5.7 (sensitivity of the three receivers) into outputs/fig5_7_sensitivity.{png,csv}.
-thesis-demo: install
-	$(BIN)/chirplidar demo --out outputs
+sensitivity: install
+	$(BIN)/chirplidar sensitivity --out outputs
 
 test: install
 	$(BIN)/python -m pytest -q
@@ -34,6 +34,7 @@ test-slow: install
 	$(BIN)/python -m pytest -q -m slow
 
 bench: install
+	$(BIN)/chirplidar bench --what startup
 	$(BIN)/chirplidar bench --what shot
 	$(BIN)/chirplidar bench --what raycast
 	$(BIN)/chirplidar bench --what tiers
