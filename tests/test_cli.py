@@ -262,6 +262,19 @@ def test_import_units_and_help_stay_light():
                           "build_parser().format_help()") == []
 
 
+@pytest.mark.parametrize("package", ["geometry", "target", "optics", "atmosphere"])
+def test_physics_packages_import_their_modules_on_first_use(package):
+    """The physics packages list their names without importing scipy or trimesh; every name of
+    ``__all__`` and every submodule is there when read."""
+    assert _modules_after(f"import chirplidar.{package}") == []
+    code = (f"import chirplidar.{package} as p\n"
+            "missing = [n for n in p.__all__ if not hasattr(p, n)]\n"
+            "assert not missing and set(p.__all__) <= set(dir(p)), missing\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr
+
+
 def test_package_names_load_on_first_use():
     import chirplidar
 
