@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 # The optional-dependency extras make install puts in the virtualenv (pyproject.toml).
 EXTRAS := test,docs,lint
 
-.PHONY: install demo thesis-demo test test-slow bench docs lint clean
+.PHONY: install demo sensitivity test test-slow bench docs lint clean
 
 install: $(STAMP)
 
@@ -25,8 +25,8 @@ demo: install
 	    --out outputs/greenland_uav_coverage.nc --png outputs/greenland_uav_coverage.png
 
 # Thesis Fig. 5.7 (sensitivity of the three receivers) into outputs/fig5_7_sensitivity.{png,csv}.
-thesis-demo: install
-	$(BIN)/chirplidar demo --out outputs
+sensitivity: install
+	$(BIN)/chirplidar sensitivity --out outputs
 
 test: install
 	$(BIN)/python -m pytest -q
@@ -36,6 +36,7 @@ test-slow: install
 	$(BIN)/python -m pytest -q -m slow
 
 bench: install
+	$(BIN)/chirplidar bench --what startup
 	$(BIN)/chirplidar bench --what shot
 	$(BIN)/chirplidar bench --what raycast
 	$(BIN)/chirplidar bench --what tiers
@@ -55,6 +56,7 @@ KERNEL_PATHS := src/chirplidar/units.py src/chirplidar/_checks.py src/chirplidar
 	src/chirplidar/doppler.py src/chirplidar/optics src/chirplidar/atmosphere src/chirplidar/target \
 	src/chirplidar/geometry src/chirplidar/processing src/chirplidar/receiver \
 	src/chirplidar/transmitter src/chirplidar/waveform src/chirplidar/streams.py \
+	src/chirplidar/lazy.py src/chirplidar/mission_files.py \
 	src/chirplidar/tiers tests/test_layers.py
 
 lint: install

@@ -14,7 +14,7 @@ import pytest
 from chirplidar import load_mission
 from chirplidar.analysis.accuracy import (COLUMNS, HEX_COUNTS, accuracy_study, markdown_table,
                                           pattn_for_snr, slope_footprint_echoes, write_outputs)
-from chirplidar.bench import bench_tiers
+from chirplidar.benchmarks.timing import bench_tiers
 from chirplidar.cli import main
 from chirplidar.config import ConfigError, config_with
 

@@ -1,4 +1,4 @@
-"""Command line: shot, sweep, bench, demo (in-process through ``main``)."""
+"""Command line: shot, sweep, bench, sensitivity (in-process through ``main``), start-up."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chirplidar.cli import _json_number, main
 from chirplidar.analysis import sensitivity_at
-from chirplidar.demo import load_measured, shot_noise_power_dbm, shot_noise_snr_db
+from chirplidar.cli import main
+from chirplidar.cli.common import json_number
+from chirplidar.thesis_sensitivity import load_measured, shot_noise_power_dbm, shot_noise_snr_db
 
 ROOT = Path(__file__).resolve().parents[1]
 MISSION = str(ROOT / "missions" / "thesis_bench.toml")
@@ -103,10 +104,10 @@ def test_bad_option_exits_2(capsys):
 
 
 def test_json_number_null_for_non_finite():
-    assert _json_number(-math.inf) is None
-    assert _json_number(math.nan) is None
-    assert _json_number(np.float64(-3.5)) == -3.5
-    assert _json_number(4) == 4
+    assert json_number(-math.inf) is None
+    assert json_number(math.nan) is None
+    assert json_number(np.float64(-3.5)) == -3.5
+    assert json_number(4) == 4
 
 
 # ----------------------------------------------------------------------------------------- sweep
@@ -160,7 +161,7 @@ def test_sweep_plot_against_varied_key(tmp_path, capsys):
     assert is_png(png)
 
 
-# ------------------------------------------------------------------------------------ bench/demo
+# ----------------------------------------------------------------------------- bench/sensitivity
 
 def test_bench_json_keys_positive(capsys):
     assert main(["bench", "--what", "shot", "--json", "--repeats", "1"]) == 0
@@ -169,9 +170,9 @@ def test_bench_json_keys_positive(capsys):
     assert all(v > 0 for v in rec.values())
 
 
-def test_demo_link_writes_png_and_csv(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--tier", "link", "--out", str(out), "--points", "5",
+def test_sensitivity_link_writes_png_and_csv(tmp_path, capsys):
+    out = tmp_path / "sensitivity"
+    assert main(["sensitivity", "--tier", "link", "--out", str(out), "--points", "5",
                  "--no-progress"]) == 0
     summary = capsys.readouterr().out
     for det in ("homodyne", "direct", "heterodyne"):
@@ -183,6 +184,20 @@ def test_demo_link_writes_png_and_csv(tmp_path, capsys):
     assert len(rows) == 15
     assert {r["detection"] for r in rows} == {"homodyne", "direct", "heterodyne"}
     assert set(output_names()) <= set(rows[0])
+
+
+def test_demo_is_a_hidden_alias_of_sensitivity(tmp_path, capsys):
+    """``demo`` (the former name) says so in one line and runs ``sensitivity``; the help lists
+    ``sensitivity`` only."""
+    code = main(["demo", "--tier", "link", "--mission", str(tmp_path / "nope.toml"),
+                 "--out", str(tmp_path), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.splitlines()[0] == "chirplidar demo is now chirplidar sensitivity"
+    assert "nope.toml" in err
+    assert main(["--help"]) == 0
+    listed = capsys.readouterr().out
+    assert "sensitivity" in listed and " demo " not in listed
 
 
 def test_measured_tables_load():
@@ -221,3 +236,63 @@ def test_bench_raycast_json(capsys):
     rec = strict_json(capsys.readouterr().out)
     assert set(rec) == {"project_rays_per_s", "embree_rays_per_s", "ratio"}
     assert all(v > 0 for v in rec.values())
+
+
+# -------------------------------------------------------------------------------------- start-up
+
+HEAVY = ("scipy", "xarray", "trimesh", "dask", "matplotlib", "pandas", "pydantic", "shapely")
+
+
+def _modules_after(code: str) -> list[str]:
+    """Top-level packages of :data:`HEAVY` imported by ``python -c code`` (a fresh process)."""
+    loaded = "{m.split('.')[0] for m in sys.modules}"
+    probe = f"{code}\nimport json, sys\nprint(json.dumps(sorted({loaded} & {set(HEAVY)!r})))"
+    res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_import_units_and_help_stay_light():
+    """``import chirplidar.units`` and ``chirplidar --help`` import none of the heavy packages
+    (the package ``__init__`` and the command line import them on first use)."""
+    assert _modules_after("import chirplidar.units") == []
+    assert _modules_after("import chirplidar; chirplidar.__version__") == []
+    assert _modules_after("from chirplidar.cli import build_parser\n"
+                          "build_parser().format_help()") == []
+
+
+@pytest.mark.parametrize("package", ["geometry", "target", "optics", "atmosphere"])
+def test_physics_packages_import_their_modules_on_first_use(package):
+    """The physics packages list their names without importing scipy or trimesh; every name of
+    ``__all__`` and every submodule is there when read."""
+    assert _modules_after(f"import chirplidar.{package}") == []
+    code = (f"import chirplidar.{package} as p\n"
+            "missing = [n for n in p.__all__ if not hasattr(p, n)]\n"
+            "assert not missing and set(p.__all__) <= set(dir(p)), missing\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr
+
+
+def test_package_names_load_on_first_use():
+    import chirplidar
+
+    from chirplidar import ConfigError, OUTPUT_NAMES, simulate_shot  # noqa: F401
+    assert "SNR" in chirplidar.OUTPUT_NAMES and set(chirplidar.__all__) <= set(dir(chirplidar))
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        chirplidar.nope  # noqa: B018
+
+
+def test_bench_startup_json(capsys):
+    assert main(["bench", "--what", "startup", "--json", "--repeats", "1"]) == 0
+    rec = strict_json(capsys.readouterr().out)
+    assert set(rec) == {"help_s", "import_units_s", "python_s", "repeats"}
+    assert rec["repeats"] == 1 and all(rec[k] > 0 for k in ("help_s", "import_units_s"))
+
+
+def test_benchmark_modules_import():
+    import importlib
+
+    for name in ("timing", "scale", "coverage", "startup"):
+        importlib.import_module(f"chirplidar.benchmarks.{name}")

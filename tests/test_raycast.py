@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chirplidar.geometry import raycast
-from chirplidar.geometry.footprints import footprint_returns, footprint_subrays
+from chirplidar.geometry.footprints import footprint_statistics, footprint_subrays
 from chirplidar.geometry.raycast import EmbreeUnavailableWarning, bench_raycast, cast_rays
 from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
 from chirplidar.geometry.terrain import MATERIAL_CODES, Terrain
@@ -149,7 +149,7 @@ def test_sloped_plane_footprint_range_spread():
         s = np.deg2rad(s_deg)
         t = sloped_plane(s, az, 0.0, (-200.0, 200.0, -200.0, 200.0), 20.0)
         o = np.array([[0.0, 0.0, A]])
-        fr = footprint_returns(t, o, [_dir(0.0)], th_d, n_sub)
+        fr = footprint_statistics(t, o, [_dir(0.0)], th_d, n_sub)
         _, d, _ = footprint_subrays(o, [_dir(0.0)], th_d, n_sub)
         along = (d[:, 0] * np.cos(az) + d[:, 1] * np.sin(az)) / -d[:, 2]
         diameter = A * (along.max() - along.min())
@@ -168,7 +168,7 @@ def test_footprint_partial_and_full_miss():
     symmetric pattern cut through its centre); a beam far away misses entirely."""
     t = flat_plane(0.0, (0.0, 100.0, -50.0, 50.0), 10.0, "rock")
     o = np.array([[0.0, 0.0, A], [50.0, 0.0, A], [1e4, 0.0, A]])
-    fr = footprint_returns(t, o, np.tile(_dir(0.0), (3, 1)), 5e-3, 256)
+    fr = footprint_statistics(t, o, np.tile(_dir(0.0), (3, 1)), 5e-3, 256)
     assert 0.35 < fr.hit_fraction[0] < 0.65
     assert fr.hit_fraction[1] == pytest.approx(1.0)
     assert fr.hit_fraction[2] == 0.0
@@ -184,7 +184,7 @@ def test_footprint_majority_material():
     codes[:, 10:] = MATERIAL_CODES["open_water"]             # x > 0 is water
     t = Terrain.from_heightfield(x, x, np.zeros((21, 21)), codes)
     o = np.array([[-10.0, 0.0, A], [10.0, 0.0, A]])          # beam radius ~ A * 0.03 = 30 m
-    fr = footprint_returns(t, o, np.tile(_dir(0.0), (2, 1)), 0.03, 300)
+    fr = footprint_statistics(t, o, np.tile(_dir(0.0), (2, 1)), 0.03, 300)
     assert fr.material_code.tolist() == [MATERIAL_CODES["snow"], MATERIAL_CODES["open_water"]]
 
 

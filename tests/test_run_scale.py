@@ -197,7 +197,8 @@ def test_workers_identical_to_serial(small, tmp_path):
 def test_scale_bench_pairs_alternate_and_agree(small, monkeypatch):
     """``bench --what scale`` on the small mission: pairs of full runs whose order alternates,
     identical files, and the speedup is the median of the pairs' ratios."""
-    from chirplidar.mission import runner, scale_bench
+    from chirplidar.benchmarks import scale as scale_bench
+    from chirplidar.mission import runner
 
     monkeypatch.setenv("CHIRPLIDAR_CACHE", str(small.cache))
     order = []
@@ -222,7 +223,7 @@ def test_scale_bench_pairs_alternate_and_agree(small, monkeypatch):
 def test_scale_bench_pair_statistics():
     """Reference: hand computation. Ratios 4/2, 5/2.5, 6/4 = 2, 2, 1.5: median 2; numpy's
     linear quartiles of (1.5, 2, 2) are 1.75 and 2; the time medians are 5 and 2.5 s."""
-    from chirplidar.mission.scale_bench import pair_statistics
+    from chirplidar.benchmarks.scale import pair_statistics
 
     st = pair_statistics([4.0, 5.0, 6.0], [2.0, 2.5, 4.0])
     assert st["serial_s"] == 5.0 and st["workers_s"] == 2.5

@@ -93,7 +93,7 @@ def test_sweep_plot_unknown_name(tmp_path):
 
 
 def test_sensitivity_plot(tmp_path):
-    from chirplidar.demo import load_measured, shot_noise_snr_db
+    from chirplidar.thesis_sensitivity import load_measured, shot_noise_snr_db
 
     p = np.linspace(-40.0, -105.0, 14)
     sim = {"homodyne": (p, p + 106.0), "direct": (p + 20, 2 * (p + 65.0)),
@@ -105,7 +105,8 @@ def test_sensitivity_plot(tmp_path):
 
 
 def test_physics_and_cli_do_not_import_matplotlib():
-    code = ("import sys, chirplidar.config, chirplidar.cli, chirplidar.demo, chirplidar.bench\n"
+    code = ("import sys, chirplidar.config, chirplidar.cli, chirplidar.thesis_sensitivity\n"
+            "import chirplidar.benchmarks.timing\n"
             "try:\n    import chirplidar.api\nexcept ImportError:\n    pass\n"
             "bad = [m for m in sys.modules if m.startswith('matplotlib')]\n"
             "assert not bad, bad\n")

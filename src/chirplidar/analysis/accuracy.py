@@ -87,7 +87,7 @@ COLUMNS = ("snr_target_db", "pattn_db", "study", "family", "tier", "setting", "k
 
 
 def default_mission_path() -> Path:
-    from ..bench import default_mission_path as find
+    from ..mission_files import default_mission_path as find
 
     return find(MISSION_NAME)
 

@@ -41,7 +41,7 @@ class Case:
 
 
 def _mission():
-    from ..bench import default_mission_path
+    from ..mission_files import default_mission_path
     return default_mission_path("thesis_ch5_bench.toml")
 
 

@@ -21,52 +21,60 @@ Public API:
   ``grouped_standard_error``
 """
 
-from .beam import beam_wander_variance, gaussian_beam_parameters, long_term_beam_radius
-from .coupling import (
-    COUPLING_SUBHARMONIC_LEVELS,
-    grouped_standard_error,
-    turbulent_coupling,
-    turbulent_coupling_exact,
-    turbulent_coupling_mean,
-    turbulent_coupling_samples,
-    turbulent_coupling_screen_expectation,
-)
-from .moving import MovingScreen
-from .screens import (
-    KOLMOGOROV_SF_COEFF,
-    PSD_COEFF,
-    ResolutionWarning,
-    expected_screen_structure_function,
-    kolmogorov_structure_function,
-    phase_screen,
-    phase_screens,
-    screen_structure_function_lattice,
-    structure_function_estimate,
-    structure_function_from_psd,
-    von_karman_covariance,
-    von_karman_phase_variance,
-    von_karman_psd,
-    von_karman_structure_function,
-)
-from .transmission import (
-    beer_lambert_transmission,
-    one_way_power_transmission,
-    round_trip_power_transmission,
-)
-from .turbulence import (
-    HV57_GROUND_CN2,
-    HV57_RMS_WIND_MPS,
-    cn2_hufnagel_valley,
-    cn2_path_integral,
-    coherence_radius,
-    constant_profile,
-    fried_parameter,
-    fried_parameter_profile,
-    hufnagel_valley_profile,
-    isoplanatic_angle,
-    rytov_variance,
-    rytov_variance_profile,
-    slant_path_length,
+from ..lazy import lazy_exports
+
+# Imported on first use (PEP 562): the submodules pull in scipy.
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "beam": ("beam_wander_variance", "gaussian_beam_parameters", "long_term_beam_radius"),
+        "coupling": (
+            "COUPLING_SUBHARMONIC_LEVELS",
+            "grouped_standard_error",
+            "turbulent_coupling",
+            "turbulent_coupling_exact",
+            "turbulent_coupling_mean",
+            "turbulent_coupling_samples",
+            "turbulent_coupling_screen_expectation",
+        ),
+        "moving": ("MovingScreen",),
+        "screens": (
+            "KOLMOGOROV_SF_COEFF",
+            "PSD_COEFF",
+            "ResolutionWarning",
+            "expected_screen_structure_function",
+            "kolmogorov_structure_function",
+            "phase_screen",
+            "phase_screens",
+            "screen_structure_function_lattice",
+            "structure_function_estimate",
+            "structure_function_from_psd",
+            "von_karman_covariance",
+            "von_karman_phase_variance",
+            "von_karman_psd",
+            "von_karman_structure_function",
+        ),
+        "transmission": (
+            "beer_lambert_transmission",
+            "one_way_power_transmission",
+            "round_trip_power_transmission",
+        ),
+        "turbulence": (
+            "HV57_GROUND_CN2",
+            "HV57_RMS_WIND_MPS",
+            "cn2_hufnagel_valley",
+            "cn2_path_integral",
+            "coherence_radius",
+            "constant_profile",
+            "fried_parameter",
+            "fried_parameter_profile",
+            "hufnagel_valley_profile",
+            "isoplanatic_angle",
+            "rytov_variance",
+            "rytov_variance_profile",
+            "slant_path_length",
+        ),
+    },
 )
 
 __all__ = [

@@ -6,27 +6,35 @@ paths in :mod:`.paths`, orbits in :mod:`.orbits`, attitude, beams and per-shot g
 and beam footprints in :mod:`.footprints`.
 """
 
-from .footprints import FootprintReturns, footprint_returns, footprint_subrays
-from .raycast import (
-    EmbreeUnavailableWarning,
-    RayHits,
-    bench_raycast,
-    cast_rays,
-    embree_available,
-)
-from .synthetic_terrain import (
-    SYNTHETIC_FEATURES,
-    flat_plane,
-    sloped_plane,
-    synthetic_ice_sheet,
-    vialov_height,
-)
-from .terrain import (
-    MATERIAL_CODES,
-    MATERIAL_NAMES,
-    Terrain,
-    material_code,
-    material_name,
+from ..lazy import lazy_exports
+
+# Imported on first use (PEP 562): the submodules pull in scipy and trimesh.
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "footprints": ("FootprintStats", "footprint_statistics", "footprint_subrays"),
+        "raycast": (
+            "EmbreeUnavailableWarning",
+            "RayHits",
+            "bench_raycast",
+            "cast_rays",
+            "embree_available",
+        ),
+        "synthetic_terrain": (
+            "SYNTHETIC_FEATURES",
+            "flat_plane",
+            "sloped_plane",
+            "synthetic_ice_sheet",
+            "vialov_height",
+        ),
+        "terrain": (
+            "MATERIAL_CODES",
+            "MATERIAL_NAMES",
+            "Terrain",
+            "material_code",
+            "material_name",
+        ),
+    },
 )
 
 __all__ = [
@@ -34,14 +42,14 @@ __all__ = [
     "MATERIAL_NAMES",
     "SYNTHETIC_FEATURES",
     "EmbreeUnavailableWarning",
-    "FootprintReturns",
+    "FootprintStats",
     "RayHits",
     "Terrain",
     "bench_raycast",
     "cast_rays",
     "embree_available",
     "flat_plane",
-    "footprint_returns",
+    "footprint_statistics",
     "footprint_subrays",
     "material_code",
     "material_name",

@@ -13,8 +13,8 @@ from .raycast import GOLDEN_ANGLE_RAD, cast_rays, validated_rays
 from .terrain import Terrain
 
 __all__ = [
-    "FootprintReturns",
-    "footprint_returns",
+    "FootprintStats",
+    "footprint_statistics",
     "footprint_subrays",
     "subray_pattern",
     "weighted_range_stats",
@@ -22,7 +22,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class FootprintReturns:
+class FootprintStats:
     """Per-shot statistics over a beam's sub-rays (weights renormalised over the hits).
 
     Shots with no hit: range_mean_m, range_std_m, range_spread_m, incidence_mean_rad are inf and
@@ -125,7 +125,7 @@ def weighted_range_stats(weights, ranges_m):
     return np.where(ok, mean, np.nan), np.where(ok, np.sqrt(var), np.nan), tot
 
 
-def footprint_returns(
+def footprint_statistics(
     terrain: Terrain,
     origins,
     directions,
@@ -134,7 +134,7 @@ def footprint_returns(
     rng=None,
     *,
     extent_factor: float = 1.0,
-) -> FootprintReturns:
+) -> FootprintStats:
     """Per-shot statistics of a beam's sub-ray hits (see ``footprint_subrays``); vectorised.
 
     Mean, standard deviation and mean incidence are weighted by the Gaussian sub-ray weights
@@ -164,7 +164,7 @@ def footprint_returns(
     ).reshape(n, n_mat)
     mat = np.where(anyhit, np.argmax(per, axis=1), -1).astype(np.int32)
     inf = np.inf
-    return FootprintReturns(
+    return FootprintStats(
         range_mean_m=np.where(anyhit, mean, inf),
         range_std_m=np.where(anyhit, std, inf),
         range_spread_m=np.where(anyhit, rmax - np.where(anyhit, rmin, 0.0), inf),

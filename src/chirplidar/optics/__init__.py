@@ -14,34 +14,42 @@ Public API (stable):
 See docs/explanation/validation/optics.md.
 """
 
-from .beam import (
-    beam_fraction_in_disc,
-    beam_radius_m,
-    diffraction_divergence_rad,
-    footprint_diameter_m,
-    rayleigh_range_m,
+from ..lazy import lazy_exports
+
+# Imported on first use (PEP 562): the submodules pull in scipy.
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "beam": (
+            "beam_fraction_in_disc",
+            "beam_radius_m",
+            "diffraction_divergence_rad",
+            "footprint_diameter_m",
+            "rayleigh_range_m",
+        ),
+        "coupling": (
+            "annulus_mode_autocorrelation",
+            "coupling_beta",
+            "coupling_efficiency",
+            "coupling_mutual_coherence",
+            "fiber_mode_pupil",
+            "monostatic_diffuse_coupling",
+            "optimal_beta",
+            "optimal_beta_monostatic",
+            "pupil_field_coupling",
+        ),
+        "diffraction": (
+            "airy_first_null_rad",
+            "airy_intensity",
+            "focal_plane_coupling",
+            "focal_spot_diameter_m",
+            "fraunhofer",
+            "fresnel_number",
+            "is_far_field",
+        ),
+        "pupil": ("PupilGrid", "pupil_grid"),
+    },
 )
-from .coupling import (
-    annulus_mode_autocorrelation,
-    coupling_beta,
-    coupling_efficiency,
-    coupling_mutual_coherence,
-    fiber_mode_pupil,
-    monostatic_diffuse_coupling,
-    optimal_beta,
-    optimal_beta_monostatic,
-    pupil_field_coupling,
-)
-from .diffraction import (
-    airy_first_null_rad,
-    airy_intensity,
-    focal_plane_coupling,
-    focal_spot_diameter_m,
-    fraunhofer,
-    fresnel_number,
-    is_far_field,
-)
-from .pupil import PupilGrid, pupil_grid
 
 __all__ = [
     "PupilGrid",

@@ -1,4 +1,5 @@
-"""Timing of the simulator against a reference cost (DESIGN rule 1: show what accuracy costs in time).
+"""Timing of the simulator against a reference cost (DESIGN rule 1: show what accuracy costs in
+time).
 
 ``bench_shot`` times one rf-tier shot of the thesis bench mission against ONE real FFT of the same
 record length (N = sims.T * sims.Fs samples), the floor any time-domain simulation pays. Times are
@@ -15,21 +16,12 @@ from typing import Any, Callable
 import numpy as np
 import scipy.fft
 
-MISSION_NAME = "thesis_bench.toml"
-
-
-def default_mission_path(name: str = MISSION_NAME) -> Path:
-    """``missions/<name>`` from the working directory, else from the source checkout."""
-    candidates = [Path.cwd() / "missions" / name,
-                  Path(__file__).resolve().parents[2] / "missions" / name]
-    for path in candidates:
-        if path.is_file():
-            return path
-    return candidates[0]  # load_mission reports it as missing, naming the path
+from ..mission_files import default_mission_path
 
 
 def time_call(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1) -> float:
-    """Median wall-clock time of ``fn()`` in seconds over ``repeats`` calls, after ``warmup`` calls."""
+    """Median wall-clock time of ``fn()`` in seconds over ``repeats`` calls, after ``warmup``
+    calls."""
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
     for _ in range(warmup):
@@ -56,8 +48,8 @@ def bench_shot(mission: str | Path | None = None, overrides: list[str] | None = 
     the median of the per-pair ratios: a shared machine's speed drifts between seconds, and a ratio
     of two medians taken apart would carry that drift. Absolute times are not asserted anywhere.
     """
-    from .api import simulate_shot
-    from .config import load_mission
+    from ..api import simulate_shot
+    from ..config import load_mission
 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
@@ -89,8 +81,8 @@ def bench_tiers(mission: str | Path | None = None, overrides: list[str] | None =
     Returns ``rf_shot_s``, ``baseband_shot_s``, ``link_shot_s``, ``baseband_speedup``
     (rf_shot_s / baseband_shot_s) and ``link_shots_per_s``.
     """
-    from .config import load_mission
-    from .channel.lab import simulate_lab
+    from ..channel.lab import simulate_lab
+    from ..config import load_mission
 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
@@ -123,8 +115,10 @@ EFFECT_SETTINGS: dict[str, list[str]] = {
     "doppler": ["effects.doppler.radial_velocity_mps=1.0"],
     # Field-trial-like 8" telescope at f/5 with a 30 % obstruction, SMF-28 at 1310 nm (4.6 um).
     "coupling": ["atm.state=on", "effects.coupling.obstruction_ratio=0.3",
-                 "effects.coupling.focal_length_m=1.0", "effects.coupling.mode_field_radius_m=4.6e-6",
-                 "effects.coupling.fiber_numerical_aperture=0.14", 'effects.coupling.target="diffuse"'],
+                 "effects.coupling.focal_length_m=1.0",
+                 "effects.coupling.mode_field_radius_m=4.6e-6",
+                 "effects.coupling.fiber_numerical_aperture=0.14",
+                 'effects.coupling.target="diffuse"'],
 }
 # Turbulence degrades the coupling, so it is timed with 'coupling' on too (mean fading: the mode
 # mission runs use).
@@ -143,9 +137,9 @@ def bench_effects(mission: str | Path | None = None, overrides: list[str] | None
     """
     import json
 
-    from .api import simulate_shot
-    from .channel.effects import EFFECTS
-    from .config import load_mission
+    from ..api import simulate_shot
+    from ..channel.effects import EFFECTS
+    from ..config import load_mission
 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")

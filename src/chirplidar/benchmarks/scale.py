@@ -52,10 +52,10 @@ def bench_scale(mission=None, overrides=(), *, workers: int = 2, repeats: int = 
     ``progress(line)``, if given, is called after each pair."""
     import xarray as xr
 
-    from ..bench import default_mission_path
-    from .results import read_netcdf
-    from .preflight import prepare
-    from .runner import run_mission
+    from ..mission.preflight import prepare
+    from ..mission.results import read_netcdf
+    from ..mission.runner import run_mission
+    from ..mission_files import default_mission_path
 
     if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
         raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
@@ -128,10 +128,10 @@ def bench_campaign(mission=None, overrides=(), *, workers: int = 2, progress=Non
     file; the terrain cache is filled and the passes found by an untimed preparation first.
     Returns days, passes, shots (records; each has one return per beam), beams, seconds and
     shots_per_s."""
-    from ..bench import default_mission_path
     from ..geometry import earth_orientation as eo
-    from .preflight import prepare
-    from .runner import run_mission
+    from ..mission.preflight import prepare
+    from ..mission.runner import run_mission
+    from ..mission_files import default_mission_path
 
     path = Path(mission) if mission is not None else default_mission_path(CAMPAIGN_NAME)
     config, _, plan = prepare(path, overrides=list(overrides))

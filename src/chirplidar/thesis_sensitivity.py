@@ -1,5 +1,6 @@
-"""Thesis Fig. 5.7 reproduction: SNR against received power for self-chirped homodyne, direct and
-heterodyne detection on the lab-bench mission, with the measured points of Tables 5.2-5.4.
+"""Thesis Fig. 5.7 reproduction (``chirplidar sensitivity``): SNR against received power for
+self-chirped homodyne, direct and heterodyne detection on the lab-bench mission, with the measured
+points of Tables 5.2-5.4.
 
 Each detection type is one sweep of the bench attenuator ``atm.Pattn`` (dB). On the fiber bench
 the received power is Psig = Psig(Pattn=0) - Pattn (dBm), so one probe shot at Pattn = 0 fixes the
@@ -21,7 +22,6 @@ from typing import Sequence
 import numpy as np
 
 from .analysis import sensitivity_at
-
 from .units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, ratio_db
 
 PNG_NAME = "fig5_7_sensitivity.png"
@@ -43,7 +43,7 @@ class Detection:
 # Run on missions/thesis_ch5_bench.toml (the measured hardware). The homodyne modulator sits at
 # its null (Sec. 3.1, set in the mission); the direct and heterodyne prototypes need power
 # modulation at the chirp frequency, i.e. the linear-power bias V_pi / 2 (Fig. 2.10 left).
-DEMO_MISSION = "thesis_ch5_bench.toml"
+SENSITIVITY_MISSION = "thesis_ch5_bench.toml"
 
 DETECTIONS: tuple[Detection, ...] = (
     Detection("homodyne", (), (-40.0, -110.0), -96.0, "5.4"),
@@ -66,7 +66,7 @@ class CurveResult:
 
 
 @dataclass
-class DemoResult:
+class SensitivityResult:
     png: Path
     csv: Path
     curves: list[CurveResult]
@@ -127,22 +127,22 @@ def write_csv(path: Path, curves: list[CurveResult], names: Sequence[str], units
     return path
 
 
-def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14,
+def run_sensitivity(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14,
              mission: str | Path | None = None, seed: int | None = 1, progress: bool = True,
-             detections: Sequence[Detection] = DETECTIONS) -> DemoResult:
+             detections: Sequence[Detection] = DETECTIONS) -> SensitivityResult:
     """Run the three Fig. 5.7 sweeps, write ``out_dir/fig5_7_sensitivity.{png,csv}``.
 
     ``points`` attenuation steps per curve, ``tier`` the transceiver tier, ``seed`` the run seed.
     Progress (stage messages and tqdm bars) goes to stderr when ``progress`` is true.
     """
     from .api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_shot, sweep
-    from .bench import default_mission_path
     from .config import ConfigError, config_with, load_mission
+    from .mission_files import default_mission_path
 
     if points < 2:
         raise ValueError(f"points must be >= 2, got {points}")
     t0 = time.perf_counter()
-    mission = Path(mission) if mission is not None else default_mission_path(DEMO_MISSION)
+    mission = Path(mission) if mission is not None else default_mission_path(SENSITIVITY_MISSION)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
@@ -158,7 +158,7 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
             configs.append(load_mission(mission, list(det.overrides)))
         except ConfigError as exc:
             what = " ".join(det.overrides) or "mission defaults"
-            raise ConfigError(f"demo curve '{det.name}' ({what}): {exc}") from None
+            raise ConfigError(f"sensitivity curve '{det.name}' ({what}): {exc}") from None
 
     curves: list[CurveResult] = []
     for det, cfg in zip(detections, configs):
@@ -173,7 +173,7 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
             notes.append(f"{det.name}: Psig at Pattn=0 is {psig0:.1f} dBm, below the target "
                          f"{hi:g} dBm; sweep starts at Pattn=0")
             start = 0.0
-        say(f"[demo] {det.name}: Ptx {ptx:.2f} dBm, Psig(Pattn=0) {psig0:.2f} dBm; "
+        say(f"[sensitivity] {det.name}: Ptx {ptx:.2f} dBm, Psig(Pattn=0) {psig0:.2f} dBm; "
             f"sweeping atm.Pattn {start:.1f}..{stop:.1f} dB in {points} points ({tier} tier)")
         ds = sweep(cfg, "atm.Pattn", start, stop, points, repeat=1, scale="lin", seed=seed,
                    tier=tier, progress=progress)
@@ -200,14 +200,14 @@ def run_demo(out_dir: str | Path = "outputs", tier: str = "rf", points: int = 14
         shot_noise_label="shot-noise limit, eq. 2.6.2 (eta 0.85, B 30 kHz, 1.31 um)",
         snr_line_db=SNR_LEVEL_DB,
         title=f"Thesis Fig. 5.7: sensitivity, simulated ({tier} tier) vs measured")
-    header = (f"chirplidar demo: thesis Fig. 5.7 sensitivity sweeps of atm.Pattn\n"
+    header = (f"chirplidar sensitivity: thesis Fig. 5.7 sensitivity sweeps of atm.Pattn\n"
               f"mission {mission}; tier {tier}; seed {seed}; points {points}")
     csv_path = write_csv(out_dir / CSV_NAME, curves, list(OUTPUT_NAMES), dict(OUTPUT_UNITS), header)
-    return DemoResult(png, csv_path, curves, tier, time.perf_counter() - t0,
+    return SensitivityResult(png, csv_path, curves, tier, time.perf_counter() - t0,
                       shot_noise_power_dbm(SNR_LEVEL_DB), notes)
 
 
-def format_summary(result: DemoResult) -> str:
+def format_summary(result: SensitivityResult) -> str:
     """Table of simulated against measured sensitivity (Psig at 10 dB SNR, dBm), read from a line
     fitted over SNR 12-40 dB (:func:`chirplidar.analysis.sensitivity_at`), as the tests read it."""
     lines = [f"Sensitivity at {SNR_LEVEL_DB:g} dB SNR (Psig, dBm), {result.tier} tier:",

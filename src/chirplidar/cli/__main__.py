@@ -1,0 +1,7 @@
+"""``python -m chirplidar.cli``: the ``chirplidar`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
