@@ -79,7 +79,7 @@ def node_returns(
         ref = max(2.0 * path.group_index * range_m / SPEED_OF_LIGHT_M_S - lag_s, 0.0)
     h = float(db_to_ratio(-attenuation_db) * path.reference_fraction(range_m))
     # A node's own propagation phase would be arbitrary: the optimum, or the mean ("random").
-    phase = "random" if path.carrier_phase == "random" else "optimal"
+    phase: CarrierPhase = "random" if path.carrier_phase == "random" else "optimal"
     return Returns(
         transmission=h,
         delay_s=delay,
