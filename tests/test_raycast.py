@@ -7,7 +7,8 @@ import pytest
 
 from chirplidar.geometry import raycast
 from chirplidar.geometry.footprints import footprint_statistics, footprint_subrays
-from chirplidar.geometry.raycast import EmbreeUnavailableWarning, bench_raycast, cast_rays
+from chirplidar.benchmarks.raycast import bench_raycast
+from chirplidar.geometry.raycast import EmbreeUnavailableWarning, cast_rays
 from chirplidar.geometry.synthetic_terrain import flat_plane, sloped_plane
 from chirplidar.geometry.terrain import MATERIAL_CODES, Terrain
 

@@ -9,6 +9,6 @@
   (``startup``).
 
 The accuracy-versus-time study (``accuracy``) is :mod:`chirplidar.analysis.accuracy` and the ray
-casting benchmark (``raycast``) :func:`chirplidar.geometry.bench_raycast`. Modules are imported
+casting benchmark (``raycast``) :mod:`chirplidar.benchmarks.raycast`. Modules are imported
 by the command that runs them; none is imported here.
 """

@@ -69,7 +69,7 @@ def cmd_bench(args) -> int:
     if args.what in ("accuracy", "tiers"):
         return _bench_accuracy_or_tiers(args)
     if args.what == "raycast":
-        from ..geometry import bench_raycast
+        from ..benchmarks.raycast import bench_raycast
 
         res = bench_raycast(args.triangles, args.rays, repeats=max(1, min(args.repeats, 5)))
         if args.json:

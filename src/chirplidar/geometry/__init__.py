@@ -16,7 +16,6 @@ __getattr__, __dir__ = lazy_exports(
         "raycast": (
             "EmbreeUnavailableWarning",
             "RayHits",
-            "bench_raycast",
             "cast_rays",
             "embree_available",
         ),
@@ -45,7 +44,6 @@ __all__ = [
     "FootprintStats",
     "RayHits",
     "Terrain",
-    "bench_raycast",
     "cast_rays",
     "embree_available",
     "flat_plane",

@@ -15,7 +15,6 @@
   always the same one for the same batch of rays). Where they would be more than
   ``CROP_MAX_FRACTION`` of the terrain, the whole terrain's structure is built (once per
   process) and used instead.
-* ``bench_raycast``: our ``cast_rays`` against the raw embree call on the same rays.
 
 Misses: range, points and incidence are ``inf``, face index and material code ``-1`` (never NaN).
 Incidence is the angle between -direction and the face normal folded to [0, pi/2] (surfaces are
@@ -25,7 +24,6 @@ two-sided: a mesh from a file may be wound either way).
 from __future__ import annotations
 
 import threading
-import time
 import warnings
 from dataclasses import dataclass
 
@@ -33,7 +31,6 @@ import numpy as np
 import trimesh
 from trimesh.ray import ray_triangle as _ray_triangle
 
-from .synthetic_terrain import flat_plane
 from .terrain import HeightGrid, Terrain
 
 #: The golden angle (rad): successive points of a Fibonacci spiral or lattice.
@@ -141,7 +138,7 @@ class _EmbreeScene:
         return np.asarray(self.scene.run(o, directions.astype(np.float32)), dtype=np.int64)
 
 
-def _whole_scene(terrain: Terrain) -> _EmbreeScene:
+def whole_scene(terrain: Terrain) -> _EmbreeScene:
     """The embree scene of all of the terrain, built once (and committed: queries from several
     threads may then share it)."""
     c = terrain._cache
@@ -286,7 +283,7 @@ def _first_triangle(terrain: Terrain, origins, directions):
     if _embree is not None:
         cells = None if terrain.grid is None else _reachable_cells(terrain, origins, directions)
         if cells is None:
-            return _whole_scene(terrain).first_hits(origins, directions), None
+            return whole_scene(terrain).first_hits(origins, directions), None
         if cells.size == 0:
             return np.full(origins.shape[0], -1, dtype=np.int64), None
         scene, face_of = _crop_scene(terrain, cells)
@@ -416,58 +413,3 @@ def cast_rays(terrain: Terrain, origins_m, directions) -> RayHits:
 
 
 # ---------------------------------------------------------------------- benchmark
-def bench_raycast(n_triangles: int = 1_000_000, n_rays: int = 200_000, *, repeats: int = 3):
-    """Rays per second of ``cast_rays`` (with float64 refinement) and of the raw trimesh embree
-    call (``RayMeshIntersector.intersects_first``) on the same rays, timed in the same run.
-
-    Terrain: a flat plane gridded to at least n_triangles triangles (1 m step) at z = 0 with a
-    deterministic ripple; rays: a deterministic lattice from 100 m altitude, up to 5 deg off
-    nadir. The embree scene build is excluded from both timings (reported separately). Best of
-    ``repeats``. Returns {"project_rays_per_s", "embree_rays_per_s", "ratio", "n_triangles",
-    "n_rays", "build_s", "hit_fraction"}; ratio = project / embree.
-    """
-    if _embree is None:
-        raise RuntimeError("bench_raycast needs embreex (pip install embreex)")
-    from trimesh.ray import ray_pyembree
-
-    n_triangles, n_rays = int(n_triangles), int(n_rays)
-    if n_triangles < 2 or n_rays < 1:
-        raise ValueError(f"n_triangles >= 2 and n_rays >= 1 required, got {n_triangles}, {n_rays}")
-    side = int(np.ceil(np.sqrt(n_triangles / 2.0))) + 1  # nodes per side
-    terr = flat_plane(0.0, (0.0, side - 1.0, 0.0, side - 1.0), 1.0)
-    v = terr.mesh.vertices.copy()
-    v[:, 2] = 0.3 * np.sin(v[:, 0] / 7.0) * np.cos(v[:, 1] / 11.0)
-    terr = Terrain(trimesh.Trimesh(v, terr.mesh.faces, process=False), terr.face_materials)
-    k = np.arange(n_rays, dtype=np.float64)
-    span = side - 1.0
-    alt = 100.0  # 5 deg off nadir: <= 8.8 m offset on the ground
-    inset = 0.1 * span
-    xs = inset + (k * 0.6180339887498949) % 1.0 * (span - 2 * inset)
-    ys = inset + (k + 0.5) / n_rays * (span - 2 * inset)
-    origins = np.column_stack([xs, ys, np.full(n_rays, alt)])
-    off = np.deg2rad(5.0) * ((k * 0.7548776662466927) % 1.0)
-    az = k * GOLDEN_ANGLE_RAD
-    dirs = np.column_stack([np.sin(off) * np.cos(az), np.sin(off) * np.sin(az), -np.cos(off)])
-    inter = ray_pyembree.RayMeshIntersector(terr.mesh)
-    inter.intersects_first(origins[:1], dirs[:1])  # builds trimesh's scene
-    t = time.perf_counter()
-    _whole_scene(terr).first_hits(origins[:1], dirs[:1])  # builds ours
-    build_s = time.perf_counter() - t
-    best_p = best_e = np.inf
-    for _ in range(max(1, int(repeats))):
-        t = time.perf_counter()
-        inter.intersects_first(origins, dirs)
-        best_e = min(best_e, time.perf_counter() - t)
-        t = time.perf_counter()
-        hits = cast_rays(terr, origins, dirs)
-        best_p = min(best_p, time.perf_counter() - t)
-    p, e = n_rays / best_p, n_rays / best_e
-    return {
-        "project_rays_per_s": p,
-        "embree_rays_per_s": e,
-        "ratio": p / e,
-        "n_triangles": terr.n_faces,
-        "n_rays": n_rays,
-        "build_s": build_s,
-        "hit_fraction": float(hits.hit.mean()),
-    }
