@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..processing.spectrum import PeakResult
@@ -391,20 +393,11 @@ def finish_outputs(
 ) -> Measurements:
     """Table 4.10 outputs of :func:`analyze_block`'s result (PN results carry lags in seconds);
     ``nyquist_hz``, ``delay_offset_s``: see :func:`assemble_outputs`."""
-    if config.system.modulation == "pn_code":
-        return assemble_outputs(
-            config,
-            bud,
-            result,
-            noise,
-            flags,
-            range_m=returns.range_m,
-            tier=tier,
-            lag_s=result.f_peak_hz,
-            lag_lo_s=result.f_lo_hz,
-            lag_hi_s=result.f_hi_hz,
-            power_factor=returns.power_factor,
-        )
+    read: dict[str, Any]
+    if config.system.modulation == "pn_code":  # the correlation peak's lags, in seconds
+        read = dict(lag_s=result.f_peak_hz, lag_lo_s=result.f_lo_hz, lag_hi_s=result.f_hi_hz)
+    else:
+        read = dict(extra=extra, nyquist_hz=nyquist_hz, delay_offset_s=delay_offset_s)
     return assemble_outputs(
         config,
         bud,
@@ -412,11 +405,9 @@ def finish_outputs(
         noise,
         flags,
         range_m=returns.range_m,
-        extra=extra,
         tier=tier,
         power_factor=returns.power_factor,
-        nyquist_hz=nyquist_hz,
-        delay_offset_s=delay_offset_s,
+        **read,
     )
 
 
