@@ -120,3 +120,25 @@ def test_every_tier_declares_what_it_supports():
         assert tier.name == name and tier.summary
         assert tier.supports.receivers <= rf.receivers
         assert tier.supports.modulations <= rf.modulations
+
+
+def test_flags_come_as_per_shot_masks():
+    # A batch of two rf shots whose echoes sit one chirp period apart: the second one's delay
+    # lies beyond [tau_ref, tau_ref + T), so only it is range_ambiguous (no range); a flag of the
+    # whole batch (no LO) masks every shot.
+    from chirplidar.tiers.echoes import Echoes
+
+    cfg = _at_received_power(CH5, [], -60.0)
+    period = cfg.waveform.chirp_period_s
+    echoes = Echoes(np.array([[0.0], [period]]), np.ones((2, 1)), np.zeros((2, 1)))
+    rng = np.random.default_rng(2)
+    out = TIERS["rf"].simulate(instrument_from_config(cfg), lab_returns(cfg, 2, rng, echoes),
+                               rng)
+    assert "range_ambiguous" in out["flags"]
+    assert out.flag_masks["range_ambiguous"].tolist() == [False, True]
+    assert np.isfinite(out["d_rx"][0]) and np.isnan(out["d_rx"][1])
+    no_lo = load_mission(CH5, ["COH.P_LO=0"])
+    rng = np.random.default_rng(2)
+    out = TIERS["link"].simulate(instrument_from_config(no_lo), lab_returns(no_lo, 3, rng), rng)
+    assert out.flag_masks["no_lo"].tolist() == [True, True, True]
+    assert set(out.flag_masks) == set(out["flags"])

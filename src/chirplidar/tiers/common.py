@@ -168,7 +168,15 @@ _NO_BEAT = ("no_return", "no_lo", "no_chirp")
 
 
 def unmeasured_masks(
-    config, bud, flags: list, n: int, *, power_factor=None, delay_offset_s=None, nyquist_hz=None
+    config,
+    bud,
+    flags: list,
+    n: int,
+    *,
+    power_factor=None,
+    delay_offset_s=None,
+    nyquist_hz=None,
+    shot_flags: dict | None = None,
 ):
     """Per-shot masks (silent, off_band, ambiguous) of the shots whose beat a tier cannot read:
 
@@ -181,13 +189,16 @@ def unmeasured_masks(
 
     ``delay_offset_s`` (n,): each shot's power-weighted mean echo delay offset from the budget's
     delay (footprint echoes), else 0. The flags a shot has and ``flags`` lacks are appended to
-    ``flags``."""
+    ``flags``; ``shot_flags`` (optional) receives the per-shot masks of the flags judged shot by
+    shot (``no_return``; FM chirps: ``no_overlap``, ``beat_out_of_band``, ``beat_above_nyquist``,
+    ``range_ambiguous``, ``next_chirp_tone``)."""
     pf = (
         np.ones(n)
         if power_factor is None
         else np.broadcast_to(np.asarray(power_factor, float), (n,))
     )
-    silent = (bud.psig_w * pf <= 0) | any(f in flags for f in _NO_BEAT)
+    per_shot = {"no_return": bud.psig_w * pf <= 0}
+    silent = per_shot["no_return"] | any(f in flags for f in _NO_BEAT)
     off_band = np.zeros(n, bool)
     ambiguous = np.zeros(n, bool)
     if config.system.modulation == "fm_chirp":
@@ -212,11 +223,14 @@ def unmeasured_masks(
             ("range_ambiguous", ambiguous),
             ("next_chirp_tone", other_tone),
         ):
+            per_shot[name] = mask
             if np.any(mask) and name not in flags:
                 flags.append(name)
         silent = silent | no_overlap
         # the beat of the next chirp's tone is not this lag's: not read, as out of band
         off_band = out_of_band | above | other_tone | ("harmonic_beat" in flags)
+    if shot_flags is not None:
+        shot_flags.update(per_shot)
     return silent, off_band, ambiguous
 
 
@@ -324,6 +338,7 @@ def assemble_outputs(
     out = {k: np.atleast_1d(v) for k, v in out.items()}
     out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
     out.update(_extra_outputs(extra or {}))
+    shot_flags: dict[str, np.ndarray] = {}
     masks = unmeasured_masks(
         config,
         bud,
@@ -332,10 +347,17 @@ def assemble_outputs(
         power_factor=power_factor,
         delay_offset_s=delay_offset_s,
         nyquist_hz=nyquist_hz,
+        shot_flags=shot_flags,
     )
     if any(np.any(m) for m in masks):
         out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
-    return Measurements(tier, out, flags, _spectrum(result, config.processing.rbw_hz))
+    # Every flag of the batch as a (batch,) mask: the ones judged shot by shot, else all shots.
+    flag_masks = {
+        name: np.array(np.broadcast_to(shot_flags.get(name, True), (n,))) for name in flags
+    }
+    return Measurements(
+        tier, out, flags, _spectrum(result, config.processing.rbw_hz), flag_masks=flag_masks
+    )
 
 
 def _resolution_m(bud, snr: np.ndarray) -> np.ndarray:

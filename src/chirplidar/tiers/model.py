@@ -193,15 +193,26 @@ class Measurements(Mapping):
     """A tier's outputs for a batch: the thesis Table 4.10 names (:data:`OUTPUT_UNITS`) and
     ``f_beat_hz`` as (batch,) arrays, tier-specific extras (e.g. the phase-diversity arms'
     ``arm1_Crx``), the batch's ``flags``, the ``tier`` name and, when asked, the ``spectrum``.
+    ``flag_masks`` holds every flag as a (batch,) bool array: the shots it applies to (all of
+    them for a flag of the whole batch, such as ``no_lo`` or ``saturation``).
 
     A read-only mapping: ``out["SNR"]``, ``out["flags"]`` (a list), ``out["tier"]``.
     """
 
-    def __init__(self, tier: str, values: Mapping[str, np.ndarray], flags, spectrum=None):
+    def __init__(
+        self,
+        tier: str,
+        values: Mapping[str, np.ndarray],
+        flags,
+        spectrum=None,
+        *,
+        flag_masks: Mapping[str, np.ndarray] | None = None,
+    ):
         self.tier = tier
         self.arrays = dict(values)
         self.flags = tuple(flags)
         self.spectrum = spectrum
+        self.flag_masks = dict(flag_masks or {})
 
     def _items(self) -> dict:
         out: dict[str, Any] = dict(self.arrays)
