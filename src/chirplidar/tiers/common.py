@@ -293,13 +293,67 @@ def assemble_outputs(
 
     ``range_m``: the true range ``d_error`` is measured against. ``power_factor`` (per shot) is
     what the channel's effects did to the received power (speckle): Psig reports each shot's own
-    received power. Shots whose beat the tier cannot read (no
-    signal, no LO, no chirp overlap, a beat outside the processed band or above ``nyquist_hz``,
-    a range ambiguous by a chirp period: :func:`unmeasured_masks`, ``delay_offset_s`` the
-    shots' mean echo offsets) report NaN (JSON null) for what is not measured, and their flags.
+    received power. Shots whose beat the tier cannot read (no signal, no LO, no chirp overlap, a
+    beat outside the processed band or above ``nyquist_hz``, a range ambiguous by a chirp period:
+    :func:`unmeasured_masks`, ``delay_offset_s`` the shots' mean echo offsets) report NaN (JSON
+    null) for what is not measured, and their flags.
     """
     flags = list(flags)
     n = np.size(result.snr)
+    out = _table_4_10(
+        config,
+        bud,
+        result,
+        noise,
+        n,
+        range_m=range_m,
+        no_return="no_return" in flags,
+        lag_s=lag_s,
+        lag_lo_s=lag_lo_s,
+        lag_hi_s=lag_hi_s,
+        power_factor=power_factor,
+    )
+    out = {k: np.atleast_1d(v) for k, v in out.items()}
+    out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
+    out.update(_extra_outputs(extra or {}))
+    shot_flags: dict[str, np.ndarray] = {}
+    masks = unmeasured_masks(
+        config,
+        bud,
+        flags,
+        n,
+        power_factor=power_factor,
+        delay_offset_s=delay_offset_s,
+        nyquist_hz=nyquist_hz,
+        shot_flags=shot_flags,
+    )
+    if any(np.any(m) for m in masks):
+        out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
+    return Measurements(
+        tier,
+        out,
+        flags,
+        _spectrum(result, config.processing.rbw_hz),
+        flag_masks=_flag_masks(flags, shot_flags, n),
+    )
+
+
+def _table_4_10(
+    config: Instrument,
+    bud,
+    result: PeakResult,
+    noise,
+    n: int,
+    *,
+    range_m: float,
+    no_return: bool,
+    lag_s,
+    lag_lo_s,
+    lag_hi_s,
+    power_factor,
+) -> dict:
+    """The thesis Table 4.10 outputs of a peak result (lags in seconds, or None: read from the
+    peak's frequencies) and the noise model, before the unmeasured shots are nulled."""
     rate = bud.rate_hz_per_s
     if lag_s is None:
         lag_s = result.f_peak_hz / rate
@@ -307,9 +361,11 @@ def assemble_outputs(
     d_rx = bud.range_from_lag_m(lag_s)
     d_lo, d_hi = bud.range_from_lag_m(lag_lo_s), bud.range_from_lag_m(lag_hi_s)
     snr = np.asarray(result.snr, dtype=float)
-    no_return = "no_return" in flags
     d_res = _resolution_m(bud, snr)
-    full = lambda v: np.full(n, float(v))  # noqa: E731
+
+    def full(v):
+        return np.full(n, float(v))
+
     out = {
         "Pchrp": full(power_dbm(bud.pchrp_w)),
         "Ptx": full(power_dbm(bud.ptx_w)),
@@ -335,29 +391,12 @@ def assemble_outputs(
     }
     if no_return:
         out["d_res"] = np.full(n, np.inf)
-    out = {k: np.atleast_1d(v) for k, v in out.items()}
-    out["f_beat_hz"] = np.atleast_1d(np.asarray(result.f_peak_hz, float))
-    out.update(_extra_outputs(extra or {}))
-    shot_flags: dict[str, np.ndarray] = {}
-    masks = unmeasured_masks(
-        config,
-        bud,
-        flags,
-        n,
-        power_factor=power_factor,
-        delay_offset_s=delay_offset_s,
-        nyquist_hz=nyquist_hz,
-        shot_flags=shot_flags,
-    )
-    if any(np.any(m) for m in masks):
-        out = null_unmeasured(out, *masks, spectrum_read=tier != "link")
-    # Every flag of the batch as a (batch,) mask: the ones judged shot by shot, else all shots.
-    flag_masks = {
-        name: np.array(np.broadcast_to(shot_flags.get(name, True), (n,))) for name in flags
-    }
-    return Measurements(
-        tier, out, flags, _spectrum(result, config.processing.rbw_hz), flag_masks=flag_masks
-    )
+    return out
+
+
+def _flag_masks(flags, shot_flags: dict, n: int) -> dict[str, np.ndarray]:
+    """Every flag of the batch as a (batch,) mask: the ones judged shot by shot, else all."""
+    return {name: np.array(np.broadcast_to(shot_flags.get(name, True), (n,))) for name in flags}
 
 
 def _resolution_m(bud, snr: np.ndarray) -> np.ndarray:
