@@ -148,9 +148,11 @@ def _subcommands(parser: argparse.ArgumentParser):
     """(name, help, subparser) of every subcommand, in the parser's order."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
+            # Subcommands without help (hidden aliases such as `demo`) are not listed.
             helps = {a.dest: a.help for a in action._choices_actions}
             for name, sub in action.choices.items():
-                yield name, helps.get(name) or "", sub
+                if name in helps:
+                    yield name, helps[name] or "", sub
 
 
 def cli_page() -> str:
@@ -445,3 +447,12 @@ def on_files(files, config):
             files.remove(existing)
         files.append(File.generated(config, uri, content=make()))
     return files
+
+
+# The docstrings cross-reference in Sphinx's roles (:func:`x`, :class:`~a.b.C`); mkdocstrings
+# renders them as text followed by code. Keep the code, with `~` showing the last name only.
+_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|obj|exc):<code>(~?)([^<]*)</code>")
+
+
+def on_page_content(html, page, config, files):
+    return _ROLE.sub(lambda m: f"<code>{m[2].rsplit('.', 1)[-1] if m[1] else m[2]}</code>", html)

@@ -71,10 +71,14 @@ def test_shot_table_output(capsys):
 
 
 def test_shot_plot_on_link_tier_is_refused(tmp_path, capsys):
+    # The link tier declares no spectrum (tiers.registry): refused before the shot, as bad input,
+    # naming the tiers that draw one.
     png = tmp_path / "none.png"
     code = main(["shot", MISSION, "--tier", "link", "--plot", str(png)])
-    assert code == 1
-    assert "spectrum" in capsys.readouterr().err
+    assert code == 2
+    captured = capsys.readouterr()
+    assert "draws no spectrum; use --tier rf or baseband" in captured.err
+    assert captured.out == ""
     assert not png.exists()
 
 
@@ -296,3 +300,24 @@ def test_benchmark_modules_import():
 
     for name in ("timing", "scale", "coverage", "startup"):
         importlib.import_module(f"chirplidar.benchmarks.{name}")
+
+
+def test_run_mission_may_follow_set(capsys):
+    # As for shot, sweep and study: the mission after a --set list is the mission, not a key.
+    uav = str(ROOT / "missions" / "greenland_uav.toml")
+    assert main(["run", "--set", "survey.stop_s=1", uav, "--dry-run", "--json"]) == 0
+    assert "shots" in strict_json(capsys.readouterr().out)
+    assert main(["run", "--set", "survey.stop_s=1"]) == 2
+    assert "required: MISSION" in capsys.readouterr().err
+
+
+def test_api_takes_a_mission_path_and_refuses_an_empty_sweep():
+    from chirplidar import api, load_mission
+
+    by_path = api.simulate_shot(MISSION, tier="link")
+    by_config = api.simulate_shot(load_mission(MISSION), tier="link")
+    assert by_path["SNR"] == by_config["SNR"]
+    with pytest.raises(ValueError, match="n \\(points\\) must be an integer >= 1"):
+        api.sweep(MISSION, "atm.Pattn", 70, 80, 0)
+    with pytest.raises(TypeError, match="mission file's path"):
+        api.simulate_mission_shot(load_mission(MISSION))

@@ -18,3 +18,4 @@ __getattr__, __dir__ = lazy_exports(__name__, {
     "config": ("ConfigError", "MissionConfig", "load_mission"),
     "doppler": ("doppler_shift_hz",),
 })
+del lazy_exports

@@ -9,6 +9,7 @@ one shot of the survey, as ``chirplidar run`` computes it (:mod:`chirplidar.miss
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -27,8 +28,20 @@ def _rng(config: MissionConfig, seed: int | None) -> np.random.Generator:
     return np.random.default_rng(config.seed if seed is None else seed)
 
 
-def simulate_shot(config: MissionConfig, seed: int | None = None, tier: str = "rf",
-                  return_spectrum: bool = False) -> dict:
+def _config(config) -> MissionConfig:
+    """A configuration, or the mission file it names (loaded without overrides)."""
+    if isinstance(config, MissionConfig):
+        return config
+    if isinstance(config, (str, os.PathLike)):
+        from .config import load_mission
+
+        return load_mission(config)
+    raise TypeError(f"expected a MissionConfig or a mission file path, got "
+                    f"{type(config).__name__}")
+
+
+def simulate_shot(config: MissionConfig | str | os.PathLike, seed: int | None = None,
+                  tier: str = "rf", return_spectrum: bool = False) -> dict:
     """Run one shot; returns the thesis Table 4.10 outputs as floats plus ``flags``, ``tier`` and
     ``f_beat_hz`` (and ``spectrum`` for the rf tier when asked).
 
@@ -36,7 +49,9 @@ def simulate_shot(config: MissionConfig, seed: int | None = None, tier: str = "r
     The seed defaults to the configuration's ``seed``. The shot sees the configuration's own
     channel (``channel.distance_m``, the target); for a survey mission that is not the mission's
     geometry: :func:`simulate_mission_shot` evaluates a shot of the survey (a UserWarning says so).
+    ``config`` may also be a mission file's path.
     """
+    config = _config(config)
     _warn_if_survey(config, "simulate_shot", "simulate_mission_shot")
     raw = simulate_lab(config, tier, _rng(config, seed), keep_spectrum=return_spectrum)
     return _shot_floats(raw)
@@ -72,8 +87,8 @@ def simulate_mission_shot(mission, overrides=(), seed: int | None = None, tier: 
     The mission is prepared as ``chirplidar run`` prepares it (``overrides``: ``--set`` style
     strings or a mapping; ``seed``: the run's seed, default the mission's); the shot is the first
     of the survey span whose beam ``beam`` hits the terrain, or the one nearest to ``at_s``
-    seconds of the mission clock; the tier ("rf" or "link") runs on the configuration a survey
-    run builds for that shot (:mod:`chirplidar.mission.shot`). Returns :func:`simulate_shot`'s
+    seconds of the mission clock; the tier (any of ``chirplidar.tiers.TIERS``) takes the returns a
+    survey run builds for that shot (:mod:`chirplidar.mission.shot`). Returns :func:`simulate_shot`'s
     dict (Table 4.10 names of that shot) plus its geometry (``t_s``, ``beam``, ``shot_index``,
     ``range_m``, ``footprint_range_m``, ``x_m``, ``y_m``, ``surface_height_m``, ``surface``,
     ``incidence_deg``, ``off_nadir_deg``, ``platform_height_m``) and ``mission_geometry =
@@ -81,6 +96,9 @@ def simulate_mission_shot(mission, overrides=(), seed: int | None = None, tier: 
     """
     from .mission.shot import simulate_mission_shot as _mission_shot
 
+    if not isinstance(mission, (str, os.PathLike)):
+        raise TypeError(f"simulate_mission_shot takes the mission file's path (its scene path is "
+                        f"relative to it), not a {type(mission).__name__}")
     raw = _mission_shot(mission, tier=tier, at_s=at_s, beam=beam, overrides=overrides,
                         seed=seed, batch=1, keep_spectrum=return_spectrum)
     geometry = raw.pop("geometry")
@@ -90,6 +108,8 @@ def simulate_mission_shot(mission, overrides=(), seed: int | None = None, tier: 
 
 
 def _sweep_values(start: float, stop: float, n: int, scale: str) -> np.ndarray:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n (points) must be an integer >= 1, got {n!r}")
     if scale == "log":
         if start <= 0 or stop <= 0:
             raise ValueError("a log sweep needs positive start and stop")
@@ -124,15 +144,17 @@ def _progress(iterator, vary: str, progress: bool, **kwargs):
     return tqdm(iterator, desc=f"sweep {vary}", unit="pt", **kwargs)
 
 
-def sweep(config: MissionConfig, vary: str, start: float, stop: float, n: int, repeat: int = 1,
-          scale: str = "lin", seed: int | None = None, tier: str = "rf",
+def sweep(config: MissionConfig | str | os.PathLike, vary: str, start: float, stop: float,
+          n: int, repeat: int = 1, scale: str = "lin", seed: int | None = None, tier: str = "rf",
           progress: bool = False) -> xr.Dataset:
     """Vary one parameter (thesis or project name) over ``n`` points, ``repeat`` shots each.
 
     Each point draws from its own child of the run's SeedSequence, so a point's result does not
     depend on how many points the sweep has before it. Like :func:`simulate_shot`, on the
     configuration's own channel: :func:`sweep_mission` sweeps a survey mission at its geometry.
+    ``config`` may also be a mission file's path.
     """
+    config = _config(config)
     _warn_if_survey(config, "sweep", "sweep_mission")
     key = resolve_key(vary)
     xs = _sweep_values(start, stop, n, scale)

@@ -162,7 +162,9 @@ def run_sensitivity(out_dir: str | Path = "outputs", tier: str = "rf", points: i
 
     curves: list[CurveResult] = []
     for det, cfg in zip(detections, configs):
-        probe = simulate_shot(config_with(cfg, {"atm.Pattn": 0.0}), seed=seed, tier=tier)
+        # The link tier's budget of the unattenuated channel (no draw, no warning about the
+        # receiver saturating at a power the sweep never reaches).
+        probe = simulate_shot(config_with(cfg, {"atm.Pattn": 0.0}), seed=seed, tier="link")
         psig0, ptx = float(probe["Psig"]), float(probe["Ptx"])
         if not math.isfinite(psig0):
             raise RuntimeError(f"{det.name}: the probe shot at atm.Pattn=0 received no power "

@@ -148,7 +148,8 @@ def cmd_bench(args) -> int:
 
 def add_bench_parser(sub) -> None:
     """``chirplidar bench``."""
-    p = sub.add_parser("bench", help="time an rf shot against one FFT of the same length")
+    p = sub.add_parser("bench", help="timing benchmarks (--what): shot, tiers, effects, raycast, "
+                       "scale, campaign, coverage, startup, and the accuracy-against-time study")
     p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
                                       "coverage", "campaign", "startup"),
                    default="shot",

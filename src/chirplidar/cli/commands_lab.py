@@ -32,6 +32,13 @@ def cmd_shot(args) -> int:
     from ..api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_mission_shot, simulate_shot
     from ..mission.shot import GEOMETRY_KEYS, is_survey
 
+    if args.plot:
+        from ..tiers.registry import TIERS as TIER_REGISTRY
+
+        if not TIER_REGISTRY[args.tier].supports.spectrum:
+            drawn = [n for n, t in TIER_REGISTRY.items() if t.supports.spectrum]
+            raise UsageError(f"--plot: the {args.tier} tier draws no spectrum; use --tier "
+                             f"{' or '.join(drawn)}")
     cfg = load_config(args)
     if is_survey(cfg):
         # A survey mission: one shot of the survey at its own geometry, never the bench channel.
@@ -66,10 +73,8 @@ def cmd_shot(args) -> int:
         print(f"  flags     {', '.join(flags) if flags else '(none)'}")
     if args.plot:
         spectrum = result.get("spectrum")
-        if spectrum is None:
-            print(f"chirplidar shot: tier '{result.get('tier', args.tier)}' returned no spectrum; "
-                  "--plot needs --tier rf", file=sys.stderr)
-            return 1
+        if spectrum is None:   # the tiers that declare a spectrum always return one
+            raise RuntimeError(f"tier {args.tier!r} returned no spectrum")
         from ..viz.spectrum import plot_beat_spectrum
 
         where = (f", t = {result['t_s']:.6g} s, beam {result['beam']}, "

@@ -303,8 +303,8 @@ def add_run_parser(sub) -> None:
     """``chirplidar run``."""
     p = sub.add_parser("run", help="fly a survey mission over its scene and write a CF NetCDF "
                        "trajectory file")
-    p.add_argument("mission", metavar="MISSION", help="survey mission, e.g. "
-                   "missions/greenland_uav.toml")
+    p.add_argument("mission", metavar="MISSION", nargs="?", default=None,
+                   help="survey mission, e.g. missions/greenland_uav.toml")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key (e.g. platform.uav.altitude_m=200, "
                         "survey.stop_s=60, chrp.F2=300e6); repeatable")
@@ -331,7 +331,7 @@ def add_run_parser(sub) -> None:
                    help="check everything, print the planner's warnings and the run's size "
                         "(shots, estimated time from a short timed pilot, disk), and stop")
     p.add_argument("--yes", action=LargeRunConsent)
-    p.set_defaults(func=cmd_run)
+    p.set_defaults(func=cmd_run, subparser=p)
 
 
 def add_coverage_parser(sub) -> None:

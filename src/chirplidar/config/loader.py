@@ -182,14 +182,27 @@ def load_mission(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] 
 
 def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[str, Any],
                     source: str) -> MissionConfig:
+    if isinstance(overrides, (str, bytes)):
+        raise ConfigError(f"overrides must be a list of KEY=VALUE strings or a mapping of key to "
+                          f"value; got the string {overrides!r} (write [{overrides!r}])")
     items = overrides.items() if isinstance(overrides, Mapping) else (parse_set(s) for s in overrides)
     merged = dict(flat)
+    changed = []
     for key, value in items:
         proj = resolve_key(key)
         if not is_known_key(proj):
             raise ConfigError(unknown_key_message(key, "--set"))
         merged[proj] = value
-    return build_config(merged, source)
+        changed.append(proj)
+    try:
+        return build_config(merged, source)
+    except ConfigError as exc:
+        # A value given with --set is refused: name --set, not the file that holds the rest.
+        msg = str(exc)
+        if (source != "override" and msg.startswith(f"{source}: ")
+                and any(f"'{k}'" in msg for k in changed)):
+            raise ConfigError(f"--set: {msg[len(source) + 2:]}") from None
+        raise
 
 
 def config_with(config: MissionConfig, overrides: Mapping[str, Any]) -> MissionConfig:

@@ -250,35 +250,48 @@ class UnsupportedError(ValueError):
 @dataclass(frozen=True)
 class Supports:
     """What a tier models: its receivers (:data:`RECEIVER_KINDS`), modulations, Doppler
-    recoveries and whether it takes footprint echoes. ``hint``: where else to go, by key."""
+    recoveries, whether it takes footprint echoes and whether it draws a spectrum (the rf and
+    baseband tiers read their outputs off one; the link tier has none). ``hint``: where else to
+    go, by key."""
 
     receivers: frozenset[str]
     modulations: frozenset[str]
     doppler_recovery: frozenset[str]
     echoes: bool
+    spectrum: bool
     hint: Mapping[str, str] = field(default_factory=dict)
 
     def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
         """Raise :class:`UnsupportedError` naming the setting this tier does not model."""
         sysc, proc = instrument.system, instrument.processing
+
+        def refuse(setting: str, models: str, key: str) -> UnsupportedError:
+            hint = self.hint.get(key, "")
+            return UnsupportedError(
+                f"the {tier} tier does not model {setting}: it models {models}"
+                + (f"; {hint}" if hint else "")
+            )
+
         if sysc.modulation not in self.modulations:
-            modelled = " or ".join(repr(m) for m in sorted(self.modulations))
-            raise UnsupportedError(
-                f"the {tier} tier models system.modulation = {modelled} only; "
-                f"{self.hint.get('modulation', '')}system.modulation = {sysc.modulation!r}"
-                + (" (sys.MxMode = PN)" if sysc.modulation == "pn_code" else "")
+            pn = " (sys.MxMode = PN)" if sysc.modulation == "pn_code" else ""
+            raise refuse(
+                f"system.modulation = {sysc.modulation!r}{pn}",
+                " and ".join(repr(m) for m in sorted(self.modulations)),
+                "modulation",
             )
         kind = instrument.receiver_kind
         if kind not in self.receivers:
-            raise UnsupportedError(
-                f"the {tier} tier models the receivers {', '.join(sorted(self.receivers))}; "
-                f"{self.hint.get('receiver', '')}system.receiver = {sysc.receiver!r}, "
-                f"coherent_mode = {sysc.coherent_mode!r}"
+            setting = (
+                f"system.coherent_mode = {kind!r}"
+                if sysc.receiver == "coherent"
+                else f"system.receiver = {kind!r}"
             )
+            raise refuse(setting, "the receivers " + ", ".join(sorted(self.receivers)), "receiver")
         if proc.doppler_recovery not in self.doppler_recovery:
-            raise UnsupportedError(
-                f"processing.doppler_recovery = {proc.doppler_recovery!r} is not modelled by the "
-                f"{tier} tier; {self.hint.get('doppler_recovery', '')}".rstrip("; ")
+            raise refuse(
+                f"processing.doppler_recovery = {proc.doppler_recovery!r}",
+                " and ".join(repr(m) for m in sorted(self.doppler_recovery)),
+                "doppler_recovery",
             )
         if returns is not None and returns.echoes is not None and not self.echoes:
             raise UnsupportedError(

@@ -20,15 +20,17 @@ RF_SUPPORTS = Supports(
     modulations=frozenset({"fm_chirp", "pn_code"}),
     doppler_recovery=frozenset({"none", "squaring"}),
     echoes=True,
+    spectrum=True,
 )
 BASEBAND_SUPPORTS = Supports(
     receivers=frozenset({"homodyne", "phase_diversity"}),
     modulations=frozenset({"fm_chirp"}),
     doppler_recovery=frozenset({"none"}),
     echoes=True,
+    spectrum=True,
     hint={
-        "modulation": "use --tier rf for ",
-        "receiver": "direct and heterodyne detection run in the rf and link tiers: ",
+        "modulation": "use --tier rf",
+        "receiver": "use --tier rf or link (direct and heterodyne detection)",
         "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
         "the baseband record does not hold",
     },
@@ -38,8 +40,9 @@ LINK_SUPPORTS = Supports(
     modulations=frozenset({"fm_chirp"}),
     doppler_recovery=frozenset({"none"}),
     echoes=False,
+    spectrum=False,
     hint={
-        "modulation": "use --tier rf for ",
+        "modulation": "use --tier rf",
         "doppler_recovery": "use --tier rf: its noise penalty has no closed form here",
     },
 )
