@@ -1,7 +1,8 @@
 """Modulation waveforms (thesis FM_chirp.m): linear FM chirp trains and maximal-length PN codes.
 
 A waveform is evaluated analytically at any array of times, so delays are exact (t - tau), and the
-chirp phase is always taken from the time since that chirp's start (DESIGN.md numerical rules).
+chirp phase is always taken from the time since that chirp's start (docs/architecture.md, numerical
+rules).
 """
 
 from typing import TypeAlias
