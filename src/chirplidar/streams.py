@@ -68,7 +68,7 @@ STREAMS: dict[str, Stream] = {
 }
 
 
-def _check_disjoint(streams: dict[str, Stream]) -> None:
+def check_disjoint(streams: dict[str, Stream]) -> None:
     """No two streams of one spawn-key length may share a key. The effect streams are children
     of a tier call's generator, never of a chunk's: they are checked among themselves."""
     for group in (False, True):
@@ -82,7 +82,7 @@ def _check_disjoint(streams: dict[str, Stream]) -> None:
             taken.append((s.key, s.key + s.max_index, s.arity, name))
 
 
-_check_disjoint(STREAMS)
+check_disjoint(STREAMS)
 
 
 def stream_seed(seq: np.random.SeedSequence, name: str, *indices: int) -> np.random.SeedSequence:
@@ -91,11 +91,12 @@ def stream_seed(seq: np.random.SeedSequence, name: str, *indices: int) -> np.ran
         s = STREAMS[name]
     except KeyError:
         raise KeyError(f"unknown random stream {name!r}; known: {', '.join(STREAMS)}") from None
-    first, rest = (indices[0], indices[1:]) if s.max_index else (0, indices)
-    if len(rest) != s.extra or not 0 <= first <= s.max_index:
+    wanted = (1 if s.max_index else 0) + s.extra
+    first, rest = (indices[0], indices[1:]) if s.max_index and indices else (0, indices)
+    if len(indices) != wanted or not 0 <= first <= s.max_index:
+        index = f"an index in 0..{s.max_index}" if s.max_index else "no index"
         raise ValueError(
-            f"random stream {name!r} takes {'an index and ' if s.max_index else ''}"
-            f"{s.extra} further indices; got {indices}"
+            f"random stream {name!r} takes {index} and {s.extra} further indices; got {indices}"
         )
     key = (s.key + int(first),) + tuple(int(i) for i in rest)
     return np.random.SeedSequence(entropy=seq.entropy, spawn_key=tuple(seq.spawn_key) + key)
