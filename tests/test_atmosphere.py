@@ -141,7 +141,7 @@ def test_gaussian_beam_spread_and_wander():
 
 
 def test_transmission():
-    # Thesis atm.T_atm is a one-way *field* transmission: power T^2, round trip T^4 (channel.bench).
+    # Thesis atm.T_atm is a one-way *field* transmission: power T^2, round trip T^4 (channel.lab).
     assert atm.one_way_power_transmission(t_atm_field=0.9) == pytest.approx(0.81)
     assert atm.round_trip_power_transmission(t_atm_field=0.9) == pytest.approx(0.9**4)
     # Beer-Lambert exp(-alpha L).

@@ -10,7 +10,7 @@ Reference values and their sources:
   per decade of range;
 * SNR: the link budget of one shot, ``chirplidar.api.simulate_shot(config, tier="link")`` on
   the mission's own instrument with its bench channel set to the same geometry (the thesis
-  Chapter 4 point-target channel, ``channel.bench``), which shares none of the survey's geometry,
+  Chapter 4 point-target channel, ``channel.lab``), which shares none of the survey's geometry,
   sub-ray footprint or per-shot code;
 * detection probability: its definition, the fraction of the point's shots with a surface in
   the beam whose SNR clears the point's threshold, read from the point's own results file;

@@ -47,7 +47,9 @@ def _at_received_power(path, overrides, psig_dbm):
 @pytest.mark.parametrize("name", list(TIERS))
 def test_table_5_4_homodyne_sensitivity(name):
     # Thesis Table 5.4: the self-chirped homodyne receiver reads 10 dB SNR at -96 dBm
-    # (30 kHz RBW, no averaging); each tier's mean SNR there within 3 dB of it.
+    # (30 kHz RBW, no averaging); each tier's mean SNR there within 3 dB of it, the tolerance
+    # tests/test_validation.py holds the rf tier's sensitivity fit to. At the optimum carrier
+    # phase without speckle a shot's SNR scatters by a fraction of a dB, so 8 rf shots suffice.
     cfg = _at_received_power(CH5, [], -96.0)
     assert _supported(name, cfg)
     out = _run(name, cfg, seed=4)
@@ -58,8 +60,9 @@ def test_table_5_4_homodyne_sensitivity(name):
 
 @pytest.mark.parametrize("name", list(TIERS))
 def test_eq_5_2_spool_beat(name):
-    # Thesis eq. 5.2: (200 MHz / 40 us)(110.4 us - 106 us) = 22 MHz for the 22.7 km spool, the
-    # reference delayed by 106 us (d_offset = c 106 us / 2n); a strong return (-60 dBm).
+    # Thesis eq. 5.2: (200 MHz / 40 us)(110.4 us - 106 us) = 22 MHz for the 22.7 km spool, given
+    # there to two digits (0.3 MHz is inside that rounding); the reference delayed by 106 us is
+    # the Table 4.10 distance offset c 106 us / 2n. A strong return (-60 dBm).
     cfg = _at_received_power(CH5, [], -60.0)
     out = _run(name, cfg, seed=1)
     bin_hz = 1 / cfg.simulation.duration_s
@@ -98,6 +101,9 @@ def test_shot_noise_limit_eq_2_6_2(name):
     ("link", ["sys.rsel=PIN", "sys.MxMode=PN"], "system.modulation = 'pn_code'"),
     ("baseband", ['processing.doppler_recovery="squaring"', "processing.doppler_max_hz=1e6"],
      "doppler_recovery = 'squaring'"),
+    # Appendix D's squaring recovers the self-chirped homodyne beat only.
+    ("rf", ["sys.rsel=PIN", "mzm.Vdc=1.0", 'processing.doppler_recovery="squaring"',
+            "processing.doppler_max_hz=1e6"], "doppler_recovery = 'squaring' with system.receiver"),
 ])
 def test_unsupported_settings_are_refused_before_any_work(name, overrides, setting):
     # What a tier declares it does not model is refused by check() (no budget, no draw), with
@@ -141,4 +147,3 @@ def test_flags_come_as_per_shot_masks():
     rng = np.random.default_rng(2)
     out = TIERS["link"].simulate(instrument_from_config(no_lo), lab_returns(no_lo, 3, rng), rng)
     assert out.flag_masks["no_lo"].tolist() == [True, True, True]
-    assert set(out.flag_masks) == set(out["flags"])

@@ -43,7 +43,7 @@ def _config(config) -> MissionConfig:
 def simulate_shot(config: MissionConfig | str | os.PathLike, seed: int | None = None,
                   tier: str = "rf", return_spectrum: bool = False) -> dict:
     """Run one shot; returns the thesis Table 4.10 outputs as floats plus ``flags``, ``tier`` and
-    ``f_beat_hz`` (and ``spectrum`` for the rf tier when asked).
+    ``f_beat_hz`` (and ``spectrum`` when asked, from a tier that draws one: rf, baseband).
 
     Units are those of ``OUTPUT_UNITS`` (dBm, dBm/Hz, m, dB). Zero power reads -inf dB, never NaN.
     The seed defaults to the configuration's ``seed``. The shot sees the configuration's own

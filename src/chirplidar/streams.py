@@ -8,7 +8,10 @@ leaves every other stream unchanged.
 
 The keys are the integers the streams have always had (results files stay the same for a seed).
 Indexed streams own the key range ``key .. key + max_index``; :data:`STREAMS` is checked at
-import so that no two streams of the same spawn-key length can share a key.
+import so that no two streams of one family and spawn-key length share a key. The two families
+hang under different parents: the survey streams under a chunk's SeedSequence, the ``effect.*``
+streams under a tier call's generator (whose keys, 1000-1004, lie inside the baseband batches'
+range: a tier's generator is never a chunk's SeedSequence itself in a run).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ STREAMS: dict[str, Stream] = {
     "baseband_batch": Stream(
         300,
         "each baseband batch of a chunk (index: batch)",
-        max_index=-(-MAX_CHUNK_SHOTS * MAX_BEAMS // BASEBAND_BATCH),
+        max_index=-(-MAX_CHUNK_SHOTS * MAX_BEAMS // BASEBAND_BATCH) - 1,
     ),
     "subray_speckle": Stream(400, "each (beam, sub-ray)'s speckle field", extra=2),
     "link_fading": Stream(900_000, "the link tier's carrier-phase fading"),
@@ -57,7 +60,7 @@ STREAMS: dict[str, Stream] = {
     "rf_shot": Stream(
         1_000_000,
         "each rf shot-beam (index: shot x beams + beam)",
-        max_index=MAX_CHUNK_SHOTS * MAX_BEAMS,
+        max_index=MAX_CHUNK_SHOTS * MAX_BEAMS - 1,
     ),
     # Children of a tier call's generator: one per channel effect (effects registry order).
     "effect.phase_noise": Stream(1000, "laser phase noise (Wiener)"),

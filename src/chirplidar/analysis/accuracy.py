@@ -63,7 +63,7 @@ HEX_COUNTS = tuple(3 * m * (m + 1) + 1 for m in range(16))   # 1, 7, 19, 37, 61,
 OUTLIER_CELLS = 5.0     # |d_error| beyond this many chirp range-resolution cells is an outlier
 
 # The turbulence study's channel: a 100 m free-space path in strong near-ground turbulence, the
-# bench's 8" f/5 telescope with a 30 % obstruction into SMF-28 (as bench.EFFECT_SETTINGS), a
+# bench's 8" f/5 telescope with a 30 % obstruction into SMF-28 (as benchmarks.timing.EFFECT_SETTINGS), a
 # specular target (exact turbulent coupling), frozen flow at 10 m/s with 10 ms between shots
 # (0.1 m of screen per shot). D/r0 ~ 6.1, plane-wave Rytov variance ~ 0.1.
 TURBULENCE_SETTINGS = {

@@ -171,7 +171,7 @@ EFFECTS: dict[str, Effect] = {
 }
 # The config's list of names, the registry and the effects' random streams are one list.
 if tuple(EFFECTS) != EFFECT_NAMES or any(f"effect.{n}" not in STREAMS for n in EFFECT_NAMES):
-    raise ImportError("channel.effects.EFFECTS, config.models.EFFECT_NAMES and the effect "
+    raise ImportError("channel.effects.EFFECTS, config.models_effects.EFFECT_NAMES and the effect "
                       "streams of chirplidar.streams disagree")
 
 

@@ -39,7 +39,8 @@ period) beats like one whole periods away: its range would be off by a multiple 
 is flagged ``range_ambiguous`` (``detected = 5``, whatever its SNR) and has no measured range.
 A link-tier node whose chirps do not overlap has no tone (SNR 0): the shots it would be
 interpolated into are evaluated on nodes at a lag with overlap, scaled by their own overlap
-(``tiers.link_survey.unread_nodes``); a shot with no tone has no SNR (the fill value), never a sentinel.
+(``tiers.link_survey.unread_nodes``); a shot with no tone has no SNR (the fill value), never a
+sentinel.
 """
 
 from __future__ import annotations
@@ -94,7 +95,7 @@ def check_range_window(config, source: str) -> None:
     bud = lab_budget(config)
     lag_span = 2.0 * config.channel.group_index * w / SPEED_OF_LIGHT_M_S   # near to far edge
     span = bud.rate_hz_per_s * lag_span                                    # its beats [Hz]
-    top = peak_search_max_hz(config, bud)
+    top = peak_search_max_hz(instrument_from_config(config), bud)
     room = top - config.processing.highpass_hz
     if lag_span >= bud.train.rise_s:
         raise ConfigError(f"{source}: survey.range_window_m = {w:g} m is longer than the chirp: "
@@ -134,7 +135,7 @@ def gate_lags(config, bud, geom, r_mean_m):
     delay = 2.0 * config.channel.group_index * np.where(ok, r_mean_m, 1.0) / SPEED_OF_LIGHT_M_S
     ref, outside = window_reference_delay_s(config, geom, r_mean_m)
     if ref is None:
-        ref = reference_delay_s(config, delay, bud.rate_hz_per_s)
+        ref = reference_delay_s(instrument_from_config(config), delay, bud.rate_hz_per_s)
     return np.mod(delay - ref, bud.train.period_s), ref, outside
 
 
@@ -147,7 +148,7 @@ def doppler_displaced(config, scene, geom, bud, lag_s) -> np.ndarray:
     have = (f_d > 0) & np.isfinite(lag_s)
     if config.processing.doppler_recovery != "none" or not np.any(have):
         return out
-    out[have] = f_d[have] * overlap_at(config, bud, lag_s[have]) >= 1.0
+    out[have] = f_d[have] * overlap_at(instrument_from_config(config), bud, lag_s[have]) >= 1.0
     return out
 
 
@@ -207,7 +208,7 @@ def measure_link(config, scene, geom, seq) -> dict:
     delay = 2.0 * n_grp * np.where(ok, r_mean, 1.0) / SPEED_OF_LIGHT_M_S
     lag, ref, outside = gate_lags(config, bud, geom, np.where(ok, r_mean, np.nan))
     f_b = rate * lag
-    no_overlap, out_of_band = beat_flags(config, bud, lag, f_b)
+    no_overlap, out_of_band = beat_flags(instrument_from_config(config), bud, lag, f_b)
     if np.any(ok):
         window = config.survey.range_window_m
         streams = ShotStreams(fading=stream(seq, "link_fading"), noise=stream(seq, "link_noise"),
@@ -375,7 +376,8 @@ def measure_baseband(config, scene, geom, seq, progress=None) -> dict:
         lags[rows] = lag
         ambiguous[rows] = range_ambiguous(bud, delay_minus_ref)
         f_b = bud.rate_hz_per_s * lag
-        cols["no_overlap"][rows], cols["out_of_band"][rows] = beat_flags(config, bud, lag, f_b)
+        cols["no_overlap"][rows], cols["out_of_band"][rows] = beat_flags(instrument, bud, lag,
+                                                                         f_b)
         cols["out_of_band"][rows] |= f_b > band_top
         if progress is not None:
             progress(idx.size)

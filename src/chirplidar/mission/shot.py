@@ -3,9 +3,11 @@ on a mission with ``[scene]``, ``[platform]``, ``[attitude]``, ``[beams]`` and `
 
 A survey mission's instrument file describes the lab bench (``channel.distance_m`` is a fiber
 spool); evaluating that configuration as it stands would report the bench, not the flight. Here
-the shot is taken from the survey itself, exactly as ``chirplidar run`` computes it:
+the shot is taken from the survey itself, as ``chirplidar run`` computes it (exactly so for the
+rf and link tiers; the baseband tier takes the shot's own aim and the rf shot's stream, where a
+run aims a batch of neighbouring shots at their median range and gate):
 
-1. the mission is prepared as a run prepares it (:func:`runner.prepare`: configuration with the
+1. the mission is prepared as a run prepares it (:func:`preflight.prepare`: configuration with the
    scene's effects, scene, plan);
 2. the shot: by default the first shot time of the span (``plan.t_s``) whose beam ``beam`` hits
    the terrain, searched chunk by chunk; ``at_s`` picks the shot nearest to that time instead
@@ -59,8 +61,8 @@ from .survey import chunk_geometry
 
 #: Geometry keys added to a mission shot's outputs (``t_s`` [s] of the mission clock, ``beam``,
 #: ``shot_index`` in the plan, ``range_m`` true range of the beam axis to the surface,
-#: ``footprint_range_m`` power-weighted mean range of the footprint (``channel.distance_m`` of the
-#: shot's configuration; ``d_error`` is relative to it), ``x_m``/``y_m``/``surface_height_m`` the
+#: ``footprint_range_m`` power-weighted mean range of the footprint (the returns' ``range_m``;
+#: ``d_error`` is relative to it), ``x_m``/``y_m``/``surface_height_m`` the
 #: beam axis's hit in the scene frame, ``surface`` its material, ``incidence_deg`` and
 #: ``off_nadir_deg``, ``platform_height_m`` ellipsoidal height of the platform).
 GEOMETRY_KEYS = ("t_s", "beam", "shot_index", "range_m", "footprint_range_m", "x_m", "y_m",
@@ -73,7 +75,7 @@ GEOMETRY_UNITS = {"t_s": "s", "range_m": "m", "footprint_range_m": "m", "x_m": "
 
 @dataclass(frozen=True)
 class Prepared:
-    """A prepared survey mission (:func:`runner.prepare`) and the name used in messages."""
+    """A prepared survey mission (:func:`preflight.prepare`) and the name used in messages."""
 
     config: object
     scene: object
@@ -109,7 +111,7 @@ def is_survey(config) -> bool:
 
 
 def prepare_mission(mission, *, overrides=(), seed=None, cache_dir=None) -> Prepared:
-    """:func:`runner.prepare` of the mission file ``mission`` (with ``--set`` style
+    """:func:`preflight.prepare` of the mission file ``mission`` (with ``--set`` style
     ``overrides`` and an optional ``seed``), or ``mission`` itself when it is already a
     :class:`Prepared`."""
     if isinstance(mission, Prepared):
@@ -186,7 +188,7 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
     """The tier input of one survey shot, as ``chirplidar run`` builds it (module docstring).
 
     ``mission``: a mission file (prepared with ``overrides`` and ``seed``) or a
-    :class:`Prepared`; ``tier``: "rf" or "link"; ``at_s``: mission-clock time [s] (default: the
+    :class:`Prepared`; ``tier``: a registered tier (rf, baseband, link); ``at_s``: mission-clock time [s] (default: the
     first shot whose beam hits the terrain); ``beam``: beam index; ``root``: the SeedSequence
     whose child c seeds chunk c (default ``SeedSequence(config.seed)``, as the run).
     """

@@ -6,9 +6,10 @@ round-trip delay, power share and carrier phase of each): :class:`Echoes`. The t
 delayed echoes coherently, so the beat peak spreads over kappa x (the footprint's delay spread).
 
 The sub-rays sample the footprint; they are not scatterers, and their optical path differences
-(2 k0 (R_k - R_l), thousands of wavelengths) must not interfere (summing them with amplitudes
-sqrt(w_k) and their propagation phases gave up to (sum_k sqrt(w_k))^2 ~ 6.4 times the power on
-flat snow with 7 sub-rays, or a fraction of it). :func:`footprint_echoes` builds the echoes:
+(2 k0 (R_k - R_l), thousands of wavelengths) must not interfere: summed with amplitudes
+sqrt(w_k) and their propagation phases they would return anything up to (sum_k sqrt(w_k))^2
+times the power (6.4 times on flat snow with 7 sub-rays). :func:`footprint_echoes` builds the
+echoes:
 
 * speckle on: each sub-ray's patch returns its own speckle field sqrt(w_k) z_k (the speckle
   effect's draw per sub-ray, circular complex Gaussian for M = 1) at its own delay: mean power

@@ -11,7 +11,7 @@ overlap duration (Rife & Boorstyn 1974), so the link tier's d_rx has a realistic
 Carrier phase ``random``: :func:`simulate_link` uses the mean over a uniform phase (half the
 optimum-phase power; its SNR is the mean SNR that sweeps and sensitivity curves need). The per-shot
 fading about that mean (thesis eq. 3.3.12, Sec. 5 field trial, Appendix D), after the record's
-averaging, is :func:`carrier_fading_factor`; survey runs (``mission.measure.measure_link``) apply it
+averaging, is :func:`carrier_fading_factor`; survey runs (``tiers.link_survey.survey_shots``) apply it
 shot by shot, as the rf and baseband tiers draw the phase per record. For the static phases
 ("optimal", "propagation", plus a speckle phase) they apply :func:`static_phase_factor` of each
 shot's own phase to the optimum-phase SNR.
@@ -141,7 +141,7 @@ def static_phase_factor(config: Instrument, psi_rad) -> np.ndarray:
       the arms' spectra are summed: (r1^2 cos^2(psi - a) + r2^2 sin^2(psi - a)) / r1^2;
     * direct and heterodyne detection: 1 (they do not depend on the optical phase).
 
-    Survey runs use it shot by shot (``mission.measure.measure_link``) for the optimum and
+    Survey runs use it shot by shot (``tiers.link_survey.survey_shots``) for the optimum and
     propagation phases, with a speckle phase added when that effect is on; its mean over a uniform
     psi is the ``random`` setting's mean phase power relative to the optimum (1/2 for homodyne).
     """

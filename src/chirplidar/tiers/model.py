@@ -18,6 +18,7 @@ Sign convention (one for every tier): a phase in :class:`Returns` or in
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -136,7 +137,7 @@ class Returns:
     carrier_phase: CarrierPhase = "optimal"
     echoes: Echoes | None = None
     reference_delay_s: float | None = None
-    batch: int = 0
+    batch: int = field(default=1)  # set by __init__: the per-shot arrays' length
 
     # Written out (not generated) so that the per-shot fields take any array-like and are
     # stored as arrays; dataclasses.replace calls it with every field.
@@ -152,11 +153,22 @@ class Returns:
         carrier_phase: CarrierPhase = "optimal",
         echoes: Echoes | None = None,
         reference_delay_s: float | None = None,
-        batch: int = 0,
+        batch: int | None = None,
     ) -> None:
-        batch = batch or int(np.size(power_factor))
-        if batch < 1:
-            raise ValueError("returns: a batch needs at least one shot")
+        batch = int(np.size(power_factor)) if batch is None else batch
+        if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
+            raise ValueError(f"returns: a batch needs at least one shot (got batch = {batch!r})")
+        if carrier_phase not in typing.get_args(CarrierPhase):
+            raise ValueError(
+                f"returns.carrier_phase must be one of "
+                f"{', '.join(typing.get_args(CarrierPhase))}; got {carrier_phase!r}"
+            )
+        if reference_delay_s is not None:
+            reference_delay_s = float(reference_delay_s)
+            if not np.isfinite(reference_delay_s):
+                raise ValueError(
+                    f"returns.reference_delay_s must be finite (got {reference_delay_s})"
+                )
         per_shot = {"power_factor": power_factor, "phase_rad": phase_rad, "doppler_hz": doppler_hz}
         values: dict[str, Any] = {"batch": batch}
         for name, value in per_shot.items():
@@ -178,6 +190,8 @@ class Returns:
                 f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
                 f"got {type(echoes).__name__}"
             )
+        if echoes is not None:
+            echoes.for_batch(batch)  # (batch, k) echoes must match the batch: checked now
         values.update(
             carrier_phase=carrier_phase, echoes=echoes, reference_delay_s=reference_delay_s
         )
@@ -251,14 +265,17 @@ class UnsupportedError(ValueError):
 class Supports:
     """What a tier models: its receivers (:data:`RECEIVER_KINDS`), modulations, Doppler
     recoveries, whether it takes footprint echoes and whether it draws a spectrum (the rf and
-    baseband tiers read their outputs off one; the link tier has none). ``hint``: where else to
-    go, by key."""
+    baseband tiers read their outputs off one; the link tier has none).
+    ``recovery_receivers``: the receivers a Doppler recovery works with, where it does not work
+    with all (squaring needs the self-chirped homodyne beat, thesis Appendix D). ``hint``: where
+    else to go, by key."""
 
     receivers: frozenset[str]
     modulations: frozenset[str]
     doppler_recovery: frozenset[str]
     echoes: bool
     spectrum: bool
+    recovery_receivers: Mapping[str, frozenset[str]] = field(default_factory=dict)
     hint: Mapping[str, str] = field(default_factory=dict)
 
     def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
@@ -280,18 +297,28 @@ class Supports:
                 "modulation",
             )
         kind = instrument.receiver_kind
+
+        def setting_of(kind: str) -> str:
+            if sysc.receiver == "coherent":
+                return f"system.coherent_mode = {kind!r}"
+            return f"system.receiver = {kind!r}"
+
         if kind not in self.receivers:
-            setting = (
-                f"system.coherent_mode = {kind!r}"
-                if sysc.receiver == "coherent"
-                else f"system.receiver = {kind!r}"
+            raise refuse(
+                setting_of(kind), "the receivers " + ", ".join(sorted(self.receivers)), "receiver"
             )
-            raise refuse(setting, "the receivers " + ", ".join(sorted(self.receivers)), "receiver")
         if proc.doppler_recovery not in self.doppler_recovery:
             raise refuse(
                 f"processing.doppler_recovery = {proc.doppler_recovery!r}",
                 " and ".join(repr(m) for m in sorted(self.doppler_recovery)),
                 "doppler_recovery",
+            )
+        needs = self.recovery_receivers.get(proc.doppler_recovery)
+        if needs is not None and kind not in needs:
+            raise refuse(
+                f"processing.doppler_recovery = {proc.doppler_recovery!r} with {setting_of(kind)}",
+                f"{proc.doppler_recovery} recovery with the receivers " + ", ".join(sorted(needs)),
+                "recovery_receiver",
             )
         if returns is not None and returns.echoes is not None and not self.echoes:
             raise UnsupportedError(

@@ -21,6 +21,10 @@ RF_SUPPORTS = Supports(
     doppler_recovery=frozenset({"none", "squaring"}),
     echoes=True,
     spectrum=True,
+    recovery_receivers={"squaring": frozenset({"homodyne"})},
+    hint={
+        "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)"
+    },
 )
 BASEBAND_SUPPORTS = Supports(
     receivers=frozenset({"homodyne", "phase_diversity"}),
