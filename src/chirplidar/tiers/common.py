@@ -6,10 +6,11 @@ from typing import Any
 
 import numpy as np
 
+from ..processing.ranging import range_accuracy_m
 from ..processing.spectrum import PeakResult
 from ..receiver import HYBRID_90
 from ..transmitter.mzm import mzm_harmonic_dominates
-from ..units import SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
+from ..units import power_dbm, ratio_db
 from .model import Instrument, Measurements, Returns
 
 # Thesis Table 4.10: output names and units.
@@ -401,13 +402,7 @@ def _flag_masks(flags, shot_flags: dict, n: int) -> dict[str, np.ndarray]:
 
 def _resolution_m(bud, snr: np.ndarray) -> np.ndarray:
     """The analytical range resolution c / (2 n B sqrt(2 SNR)) (m, eq. 2.2.2); inf at SNR 0."""
-    with np.errstate(divide="ignore"):
-        return np.where(
-            snr > 0,
-            SPEED_OF_LIGHT_M_S
-            / (2 * bud.group_index * bud.train.bandwidth_hz * np.sqrt(2 * np.maximum(snr, 1e-300))),
-            np.inf,
-        )
+    return np.asarray(range_accuracy_m(bud.train.bandwidth_hz, snr, bud.group_index))
 
 
 def _extra_outputs(extra: dict) -> dict[str, np.ndarray]:
