@@ -321,3 +321,14 @@ def test_api_takes_a_mission_path_and_refuses_an_empty_sweep():
         api.sweep(MISSION, "atm.Pattn", 70, 80, 0)
     with pytest.raises(TypeError, match="mission file's path"):
         api.simulate_mission_shot(load_mission(MISSION))
+
+
+def test_run_refuses_what_the_survey_tier_does_not_model(capsys):
+    # Every survey tier is checked against its declared support before any work (preflight):
+    # the link tier has no closed form for squaring recovery (it used to fail mid-run).
+    uav = str(ROOT / "missions" / "greenland_uav.toml")
+    assert main(["run", uav, "--set", 'processing.doppler_recovery="squaring"',
+                 "processing.doppler_max_hz=1e6", "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "survey.tier = 'link': the link tier does not model processing.doppler_recovery" in err
+    assert err.count("\n") == 1

@@ -21,13 +21,13 @@ import numpy as np
 from ..config.models import MissionConfig
 from ..tiers.echoes import Echoes
 from ..tiers.model import Returns
-from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
+from ..processing.ranging import two_way_delay_s
+from ..units import db_to_ratio
 from .effects import channel_returns
 
 
 def round_trip_delay_s(config) -> float:
-    ch = config.channel
-    return 2.0 * ch.distance_m * ch.group_index / SPEED_OF_LIGHT_M_S
+    return float(two_way_delay_s(config.channel.distance_m, config.channel.group_index))
 
 
 def footprint_radius_m(config) -> float:
@@ -72,11 +72,17 @@ def lab_returns(config: MissionConfig, batch: int, rng: np.random.Generator,
     ``channel.distance_m`` (or ``echoes`` of a footprint around it), with the enabled effects
     drawn on their own children of ``rng`` (``rng`` itself is not consumed)."""
     effects = channel_returns(config, batch, rng)
+    return _point_target_returns(config, batch, effects.power_factor, effects.phase_rad,
+                                 effects.doppler_hz, echoes)
+
+
+def _point_target_returns(config: MissionConfig, batch: int, power_factor, phase_rad, doppler_hz,
+                          echoes: Echoes | None = None) -> Returns:
+    """The configuration's point target with the given per-shot effects."""
     ch = config.channel
     return Returns(transmission=power_transmission(config), delay_s=round_trip_delay_s(config),
-                   range_m=ch.distance_m, group_index=ch.group_index,
-                   power_factor=effects.power_factor, phase_rad=effects.phase_rad,
-                   doppler_hz=effects.doppler_hz, carrier_phase=ch.carrier_phase,
+                   range_m=ch.distance_m, group_index=ch.group_index, power_factor=power_factor,
+                   phase_rad=phase_rad, doppler_hz=doppler_hz, carrier_phase=ch.carrier_phase,
                    echoes=echoes, batch=batch)
 
 
@@ -88,10 +94,8 @@ def simulate_lab(config: MissionConfig, tier: str, rng: np.random.Generator, *, 
     from ..tiers.registry import get_tier
 
     chosen = get_tier(tier)
-    instrument = instrument_from_config(config)
-    returns = lab_returns(config, batch, rng, echoes)
-    chosen.check(instrument, returns)
-    return chosen.simulate(instrument, returns, rng, keep_spectrum=keep_spectrum)
+    return chosen.simulate(instrument_from_config(config), lab_returns(config, batch, rng, echoes),
+                           rng, keep_spectrum=keep_spectrum)
 
 
 def lab_budget(config: MissionConfig):
@@ -100,8 +104,5 @@ def lab_budget(config: MissionConfig):
     from ..config.instrument import instrument_from_config
     from ..tiers.budget import make_budget
 
-    ch = config.channel
-    mean = Returns(transmission=power_transmission(config), delay_s=round_trip_delay_s(config),
-                   range_m=ch.distance_m, group_index=ch.group_index, power_factor=1.0,
-                   phase_rad=0.0, doppler_hz=0.0, carrier_phase=ch.carrier_phase)
+    mean = _point_target_returns(config, 1, 1.0, 0.0, 0.0)
     return make_budget(instrument_from_config(config), mean)

@@ -53,6 +53,7 @@ from ..channel.footprint import (FootprintReturns, footprint_returns, received,
 from ..channel.lab import lab_budget
 from ..config.instrument import instrument_from_config
 from ..streams import BASEBAND_BATCH, stream
+from ..processing.ranging import two_way_delay_s
 from ..tiers.budget import make_budget, reference_delay_s
 from ..tiers.common import beat_flags
 from ..tiers.common import range_ambiguous as _range_ambiguous
@@ -70,7 +71,7 @@ def survey_returns(config, range_m: float, transmission: float, batch: int = 1, 
     lies at ``range_m`` with received / transmitted power ``transmission`` (W/W), the carrier
     phase setting and group index of the configuration's path."""
     ch = config.channel
-    delay = 2.0 * range_m * ch.group_index / SPEED_OF_LIGHT_M_S   # as channel.lab's
+    delay = float(two_way_delay_s(range_m, ch.group_index))
     return Returns(transmission=transmission, delay_s=delay, range_m=range_m,
                    group_index=ch.group_index, power_factor=power_factor, phase_rad=phase_rad,
                    doppler_hz=doppler_hz, carrier_phase=ch.carrier_phase, echoes=echoes,

@@ -98,14 +98,15 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
         why = str(exc).removeprefix("override: ")
         raise ConfigError(f"{src} with scene {scene_path.name} (effects = "
                           f"{list(scene.effects)}): {why}") from None
-    if config.survey is not None and config.survey.tier == "baseband":
+    if config.survey is not None:   # what the survey's tier does not model, before any work
         from ..config.instrument import instrument_from_config
         from ..tiers.registry import get_tier
 
+        tier = config.survey.tier
         try:
-            get_tier("baseband").check(instrument_from_config(config))
+            get_tier(tier).check(instrument_from_config(config))
         except ValueError as exc:
-            raise ConfigError(f"{src}: survey.tier = 'baseband': {exc}") from None
+            raise ConfigError(f"{src}: survey.tier = {tier!r}: {exc}") from None
     plan = plan_survey(config, scene, src)
     measure.check_range_window(config, src)
     check_crosses_scene(plan, scene, config, src)

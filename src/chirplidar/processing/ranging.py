@@ -19,6 +19,12 @@ from .._checks import positive, positive_array
 from ..units import SPEED_OF_LIGHT_M_S
 
 
+def two_way_delay_s(range_m, group_index: float):
+    """2 n R / c [s]: the round-trip delay of a return from ``range_m`` (m) through a path of
+    group index ``group_index`` (arrays broadcast)."""
+    return 2.0 * np.asarray(range_m, float) * group_index / SPEED_OF_LIGHT_M_S
+
+
 def pulse_range_resolution_m(pulse_duration_s, group_index: float = 1.0):
     """c tau / (2 n) [m] (eq. 2.1.1): the closest two targets a pulse of duration
     ``pulse_duration_s`` (s, > 0) separates, in a medium of group index ``group_index``."""

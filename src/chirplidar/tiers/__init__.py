@@ -3,8 +3,7 @@ costs (:data:`TIERS`: rf, baseband, link). See :mod:`chirplidar.tiers.model`."""
 
 from __future__ import annotations
 
-import importlib
-
+from ..lazy import lazy_exports
 from .model import Instrument, Measurements, Returns, Supports, Tier, UnsupportedError
 from .registry import TIER_NAMES, TIERS, get_tier
 
@@ -23,10 +22,9 @@ __all__ = [
     "simulate_link",
 ]
 
-_LAZY = {"simulate_rf": "rf", "simulate_baseband": "baseband", "simulate_link": "link"}
-
-
-def __getattr__(name: str):
-    if name in _LAZY:  # the tier modules load scipy: imported on first use
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# The tier modules load scipy: imported on first use (PEP 562).
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"rf": ("simulate_rf",), "baseband": ("simulate_baseband",), "link": ("simulate_link",)},
+)
+del lazy_exports

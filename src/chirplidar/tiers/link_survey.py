@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..doppler import doppler_shift_hz
+from ..processing.ranging import two_way_delay_s
 from ..units import SPEED_OF_LIGHT_M_S, db_to_ratio
 from .common import doppler_line_hz, optimal_phase
 from .link import (
@@ -73,7 +74,7 @@ def node_returns(
     """One node: the reference target at ``range_m`` behind ``attenuation_db``, the reference
     delayed so that tau - tau_ref = ``lag_s`` (a node nearer than the lag reads the lag it can),
     else by the instrument's own rule."""
-    delay = 2.0 * range_m * path.group_index / SPEED_OF_LIGHT_M_S
+    delay = float(two_way_delay_s(range_m, path.group_index))
     ref = None
     if lag_s is not None:
         ref = max(2.0 * path.group_index * range_m / SPEED_OF_LIGHT_M_S - lag_s, 0.0)
