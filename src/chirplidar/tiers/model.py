@@ -33,7 +33,7 @@ from .echoes import Echoes
 CarrierPhase = Literal["optimal", "random", "propagation"]
 
 #: Receiver kinds a tier may support: the coherent receiver's modes and the direct detectors.
-RECEIVER_KINDS = ("homodyne", "phase_diversity", "heterodyne", "pin", "apd")
+RECEIVER_KINDS = ("homodyne", "phase_diversity", "heterodyne", "pin", "apd", "photon_counting")
 
 
 @dataclass(frozen=True)
@@ -55,29 +55,46 @@ class FiberAcceptance:
 class Instrument:
     """The transceiver a tier simulates, independent of where it points (frozen, hashable).
 
-    Its sections are the validated configuration sections of the same names (thesis Tables
-    4.1-4.9): the waveform and its timing (``waveform``, ``simulation``), the transmitter
-    (``laser``, ``modulator``, ``transmitter``), the receiver (``system`` chooses it; ``balanced``,
-    ``pin``, ``apd``, ``heterodyne`` describe the detectors) and the processing
-    (``processing``, with the reference-delay rule in ``system``). ``fiber`` is the fiber
-    coupling's acceptance check, when the receiver couples into a fiber (the ``coupling``
-    effect); ``telescope_diameter_m`` the receive aperture. Build it with
-    ``chirplidar.config.instrument_from_config``.
+    Its sections are the validated configuration sections of the same names. A chirped
+    instrument (thesis Tables 4.1-4.9) has the waveform and its timing (``waveform``,
+    ``simulation``), the transmitter (``laser``, ``modulator``, ``transmitter``), the receiver
+    (``system`` chooses it; ``balanced``, ``pin``, ``apd``, ``heterodyne`` describe the
+    detectors) and the processing (``processing``, with the reference-delay rule in ``system``).
+    A pulsed instrument (thesis Tables 2.1-2.2) has ``pulse``, ``pulse_receiver``, ``digitizer``,
+    ``pulse_ranging`` and, by its detector, ``apd`` or ``photon_counting``; its other sections
+    are None. ``fiber`` is the fiber coupling's acceptance check, when the receiver couples into
+    a fiber (the ``coupling`` effect); ``telescope_diameter_m`` the receive aperture. Build it
+    with ``chirplidar.config.instrument_from_config``.
     """
 
-    simulation: Any
-    system: Any
-    processing: Any
-    waveform: Any
-    laser: Any
-    modulator: Any
-    transmitter: Any
-    balanced: Any
-    pin: Any
-    apd: Any
-    heterodyne: Any
     telescope_diameter_m: float
+    simulation: Any = None
+    system: Any = None
+    processing: Any = None
+    waveform: Any = None
+    laser: Any = None
+    modulator: Any = None
+    transmitter: Any = None
+    balanced: Any = None
+    pin: Any = None
+    apd: Any = None
+    heterodyne: Any = None
+    pulse: Any = None
+    pulse_receiver: Any = None
+    photon_counting: Any = None
+    digitizer: Any = None
+    pulse_ranging: Any = None
     fiber: FiberAcceptance | None = None
+
+    @property
+    def kind(self) -> str:
+        """``"pulsed"`` (it has a ``pulse`` section) or ``"chirped"``."""
+        return "pulsed" if self.pulse is not None else "chirped"
+
+    @property
+    def wavelength_m(self) -> float:
+        """The carrier wavelength: the pulse's or the laser's."""
+        return float((self.pulse if self.pulse is not None else self.laser).wavelength_m)
 
     @cached_property
     def train(self) -> Waveform:
@@ -92,6 +109,8 @@ class Instrument:
     @property
     def receiver_kind(self) -> str:
         """One of :data:`RECEIVER_KINDS`."""
+        if self.pulse is not None:
+            return str(self.pulse_receiver.detector)
         if self.system.receiver == "coherent":
             return str(self.system.coherent_mode)
         return str(self.system.receiver)
@@ -121,7 +140,10 @@ class Returns:
                    or the propagation phase -2 pi nu (tau - tau_ref)
     echoes:        the footprint as delayed sub-returns, or None for a point target
     reference_delay_s: the range gate a tracker set for these shots (s), or None for the
-                   instrument's own rule (``system.reference_delay_s`` or ``sys.fmaxopt``)
+                   instrument's own rule (``system.reference_delay_s`` or ``sys.fmaxopt``; a
+                   pulsed instrument's digitizer window is centred on ``delay_s``)
+    background_power_w: (batch,) background light the receiver collects (W: sun or sky in
+                   its field of view and filter band); direct detection counts it
 
     Per-shot fields accept a scalar (every shot alike) and are stored as read-only (batch,)
     float64 arrays; ``batch`` is their length.
@@ -137,6 +159,7 @@ class Returns:
     carrier_phase: CarrierPhase = "optimal"
     echoes: Echoes | None = None
     reference_delay_s: float | None = None
+    background_power_w: np.ndarray = field(default_factory=lambda: np.zeros(1))
     batch: int = field(default=1)  # set by __init__: the per-shot arrays' length
 
     # Written out (not generated) so that the per-shot fields take any array-like and are
@@ -153,6 +176,7 @@ class Returns:
         carrier_phase: CarrierPhase = "optimal",
         echoes: Echoes | None = None,
         reference_delay_s: float | None = None,
+        background_power_w: ArrayLike = 0.0,
         batch: int | None = None,
     ) -> None:
         batch = int(np.size(power_factor)) if batch is None else batch
@@ -169,7 +193,8 @@ class Returns:
                 raise ValueError(
                     f"returns.reference_delay_s must be finite (got {reference_delay_s})"
                 )
-        per_shot = {"power_factor": power_factor, "phase_rad": phase_rad, "doppler_hz": doppler_hz}
+        per_shot = {"power_factor": power_factor, "phase_rad": phase_rad, "doppler_hz": doppler_hz,
+                    "background_power_w": background_power_w}
         values: dict[str, Any] = {"batch": batch}
         for name, value in per_shot.items():
             values[name] = _per_shot(name, value, batch)
@@ -185,6 +210,8 @@ class Returns:
                 raise ValueError(f"returns.{name} must be finite (got {values[name]})")
         if values["transmission"] < 0 or np.any(values["power_factor"] < 0):
             raise ValueError("returns.transmission and returns.power_factor must be >= 0")
+        if np.any(values["background_power_w"] < 0):
+            raise ValueError("returns.background_power_w must be >= 0")
         if echoes is not None and not isinstance(echoes, Echoes):
             raise ValueError(
                 f"echoes must be a chirplidar.tiers.echoes.Echoes or None; "
@@ -268,7 +295,8 @@ class Supports:
     baseband tiers read their outputs off one; the link tier has none).
     ``recovery_receivers``: the receivers a Doppler recovery works with, where it does not work
     with all (squaring needs the self-chirped homodyne beat, thesis Appendix D). ``hint``: where
-    else to go, by key."""
+    else to go, by key. ``kinds``: the instruments it flies, ``"chirped"`` and/or ``"pulsed"``
+    (a pulsed instrument is checked for its detector only)."""
 
     receivers: frozenset[str]
     modulations: frozenset[str]
@@ -277,9 +305,19 @@ class Supports:
     spectrum: bool
     recovery_receivers: Mapping[str, frozenset[str]] = field(default_factory=dict)
     hint: Mapping[str, str] = field(default_factory=dict)
+    kinds: frozenset[str] = frozenset({"chirped"})
 
     def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
         """Raise :class:`UnsupportedError` naming the setting this tier does not model."""
+        if instrument.kind not in self.kinds:
+            given = ("a pulsed instrument ([pulse] section)" if instrument.kind == "pulsed"
+                     else "a chirped instrument ([waveform], [system], [laser] sections)")
+            raise UnsupportedError(
+                f"the {tier} tier does not model {given}"
+                + (f"; {self.hint['kind']}" if "kind" in self.hint else ""))
+        if instrument.kind == "pulsed":
+            self._check_pulsed(tier, instrument)
+            return
         sysc, proc = instrument.system, instrument.processing
 
         def refuse(setting: str, models: str, key: str) -> UnsupportedError:
@@ -325,6 +363,13 @@ class Supports:
                 f"the {tier} tier takes no footprint echoes (a survey "
                 "broadens its line in closed form)"
             )
+
+    def _check_pulsed(self, tier: str, instrument: Instrument) -> None:
+        kind = instrument.receiver_kind
+        if kind not in self.receivers:
+            raise UnsupportedError(
+                f"the {tier} tier does not model pulse_receiver.detector = {kind!r}: it models "
+                + ", ".join(sorted(self.receivers)))
 
 
 class Tier(Protocol):

@@ -14,6 +14,7 @@ import numpy as np
 from .model import Instrument, Measurements, Returns, Supports
 
 _ALL_RECEIVERS = frozenset({"homodyne", "phase_diversity", "heterodyne", "pin", "apd"})
+_CHIRPED_TIER = "a pulsed instrument flies with --tier pulsed (survey.tier = 'pulsed')"
 
 RF_SUPPORTS = Supports(
     receivers=_ALL_RECEIVERS,
@@ -23,6 +24,7 @@ RF_SUPPORTS = Supports(
     spectrum=True,
     recovery_receivers={"squaring": frozenset({"homodyne"})},
     hint={
+        "kind": _CHIRPED_TIER,
         "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)"
     },
 )
@@ -33,6 +35,7 @@ BASEBAND_SUPPORTS = Supports(
     echoes=True,
     spectrum=True,
     hint={
+        "kind": _CHIRPED_TIER,
         "modulation": "use --tier rf",
         "receiver": "use --tier rf or link (direct and heterodyne detection)",
         "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
@@ -46,9 +49,20 @@ LINK_SUPPORTS = Supports(
     echoes=False,
     spectrum=False,
     hint={
+        "kind": _CHIRPED_TIER,
         "modulation": "use --tier rf",
         "doppler_recovery": "use --tier rf: its noise penalty has no closed form here",
     },
+)
+
+PULSED_SUPPORTS = Supports(
+    receivers=frozenset({"apd", "photon_counting"}),
+    modulations=frozenset(),
+    doppler_recovery=frozenset(),
+    echoes=True,
+    spectrum=False,
+    kinds=frozenset({"pulsed"}),
+    hint={"kind": "a chirped instrument flies with --tier link, baseband or rf"},
 )
 
 
@@ -102,8 +116,21 @@ TIERS: dict[str, RegisteredTier] = {
         "link",
         "simulate_link",
     ),
+    "pulsed": RegisteredTier(
+        "pulsed",
+        "short-pulse direct detection: the footprint's waveform, photon statistics, digitizer "
+        "and range estimators (GLAS, MOLA; thesis Ch. 2)",
+        PULSED_SUPPORTS,
+        "pulsed",
+        "simulate_pulsed",
+    ),
 }
 TIER_NAMES: tuple[str, ...] = tuple(TIERS)
+
+
+def tiers_flying(kind: str) -> tuple[str, ...]:
+    """Names of the tiers that fly a ``kind`` (``"chirped"`` or ``"pulsed"``) instrument."""
+    return tuple(name for name, tier in TIERS.items() if kind in tier.supports.kinds)
 
 
 def get_tier(name: str) -> RegisteredTier:
