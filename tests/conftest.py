@@ -5,6 +5,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "missions" / "thesis_bench.toml"
 CH5 = ROOT / "missions" / "thesis_ch5_bench.toml"
+GLAS_BENCH = ROOT / "missions" / "glas_bench.toml"
+PHOTON_COUNTING = ["pulse_receiver.detector=photon_counting", "photon_counting.detection_efficiency=0.5",
+                   "photon_counting.dead_time_s=3e-9", "photon_counting.dark_count_rate_hz=1e3"]
 
 # A small, fast configuration of the same physics (16 us record at 1.2 GS/s) for statistics.
 SMALL = ["sims.T=16e-6", "chrp.Tchp=16e-6", "sims.Fs=1.2e9", "chrp.F2=250e6", "atm.dst=300",

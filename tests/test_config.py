@@ -11,10 +11,10 @@ from pydantic.fields import FieldInfo
 from chirplidar.config import ConfigError, THESIS_TABLE, config_with, load_mission, resolve_key
 from chirplidar.config.keys import iter_fields
 from chirplidar.config.loader import PROJECT_KEYS
-from chirplidar.config.models import MissionConfig
+from chirplidar.config.models import PULSED_SECTIONS, MissionConfig
 from chirplidar.config.scene import SceneConfig, read_scene_config
 from chirplidar.geometry.terrain import MATERIAL_NAMES
-from conftest import BENCH, ROOT
+from conftest import BENCH, GLAS_BENCH, PHOTON_COUNTING, ROOT
 
 
 def test_every_thesis_name_maps_to_a_project_key():
@@ -167,7 +167,10 @@ def test_the_power_keys_are_found_by_walking_the_schemas():
 
 
 def _mission_for(key: str):
-    return BENCH if key.split(".")[0] in BENCH_SECTIONS else GREENLAND
+    section = key.split(".")[0]
+    if section in PULSED_SECTIONS + ("background",):
+        return GLAS_BENCH
+    return BENCH if section in BENCH_SECTIONS else GREENLAND
 
 
 def _refused_naming(key: str, err: ConfigError) -> str:
@@ -235,7 +238,11 @@ def test_inf_is_allowed_on_three_keys_only():
 
 @pytest.mark.parametrize("key", sorted(k for k, f in MISSION_FIELDS.items() if _numeric(f)))
 def test_every_number_of_a_mission_refuses_nan_and_inf(key):
-    base = load_mission(GREENLAND)
+    pulsed = key.split(".")[0] in PULSED_SECTIONS + ("background",)
+    # The pulsed keys on GLAS flown over Greenland, with a photon-counting detector's section.
+    base = load_mission(GREENLAND, [f"instrument={ROOT / 'instruments' / 'glas.toml'}",
+                                    *PHOTON_COUNTING, "background.source=radiance",
+                                    "background.radiance_w_m2_sr_m=1.0"] if pulsed else [])
     for value in (math.nan, math.inf, -math.inf):
         if value == math.inf and key in INF_KEYS:
             continue

@@ -62,6 +62,11 @@ STREAMS: dict[str, Stream] = {
         "each rf shot-beam (index: shot x beams + beam)",
         max_index=MAX_CHUNK_SHOTS * MAX_BEAMS - 1,
     ),
+    "pulsed_batch": Stream(
+        100_000_000,
+        "each pulsed-tier batch of a chunk (index: batch; a batch holds at least one shot-beam)",
+        max_index=MAX_CHUNK_SHOTS * MAX_BEAMS - 1,
+    ),
     # Children of a tier call's generator: one per channel effect (effects registry order).
     "effect.phase_noise": Stream(1000, "laser phase noise (Wiener)"),
     "effect.speckle": Stream(1001, "target speckle"),

@@ -55,7 +55,7 @@ def speckle_shot_correlation(config) -> float:
     ch = config.channel
     w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
     return float(speckle_decorrelation(config.effects.speckle.shift_per_shot_m, w,
-                                       config.laser.wavelength_m, ch.distance_m))
+                                       config.wavelength_m, ch.distance_m))
 
 
 def _speckle(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:
@@ -75,7 +75,7 @@ def _speckle(config, returns: ShotReturns, rng: np.random.Generator) -> ShotRetu
 
 
 def _doppler(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:
-    f_d = doppler_shift_hz(config.effects.doppler.radial_velocity_mps, config.laser.wavelength_m)
+    f_d = doppler_shift_hz(config.effects.doppler.radial_velocity_mps, config.wavelength_m)
     return dataclasses.replace(returns, doppler_hz=returns.doppler_hz + f_d)
 
 
@@ -105,7 +105,7 @@ def turbulence_d_over_r0(config) -> float:
     from ..atmosphere import fried_parameter
 
     wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
-    r0 = fried_parameter(config.channel.cn2_m_minus_2_3, config.laser.wavelength_m,
+    r0 = fried_parameter(config.channel.cn2_m_minus_2_3, config.wavelength_m,
                          config.channel.distance_m, wave=wave)
     return config.channel.telescope_diameter_m / r0
 
@@ -115,7 +115,7 @@ def _coupling_beta(config) -> float:
 
     c = config.effects.coupling
     return coupling_beta(config.channel.telescope_diameter_m, c.focal_length_m,
-                         c.mode_field_radius_m, config.laser.wavelength_m)
+                         c.mode_field_radius_m, config.wavelength_m)
 
 
 def _turbulence(config, returns: ShotReturns, rng: np.random.Generator) -> ShotReturns:

@@ -58,7 +58,7 @@ def sub_ray_power_fractions(config, scene, geom):
     area = 0.25 * np.pi * ch.telescope_diameter_m ** 2
     hit = np.isfinite(geom.sub_range_m)
     code = np.where(hit, geom.sub_material, 0)
-    rho = scene.material_reflectivity(config.laser.wavelength_m)[code]
+    rho = scene.material_reflectivity(config.wavelength_m)[code]
     specular = scene.material_specular()[code] & hit
     r = np.where(hit, geom.sub_range_m, 1.0)
     inc = np.where(hit, geom.sub_incidence_rad, 0.0)
@@ -124,7 +124,7 @@ def equivalent_cn2(config, scene, geom, r_med: float) -> float:
     z_p = float(np.median(geom.platform_xyh[:, 2]))
     zen = float(np.median(geom.off_nadir_rad[hit]))
     wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
-    lam = config.laser.wavelength_m
+    lam = config.wavelength_m
     r0 = float(scene.fried_parameter_m(lam, z_g, z_p, zen, wave=wave))
     if not np.isfinite(r0):
         return 0.0
@@ -164,12 +164,20 @@ def received_power(config, scene, geom, seq, *, exclude_effects=("doppler",)):
 
 def received(config, scene, geom, seq, exclude_effects=("doppler",)):
     """:func:`received_power` and the effects' (n, b) carrier phase [rad] (speckle)."""
-    bud = lab_budget(config)
+    transmission, mean, std, frac, phase = footprint_transmission(config, scene, geom, seq,
+                                                                  exclude_effects)
+    return lab_budget(config).ptx_w * transmission, mean, std, frac, phase
+
+
+def footprint_transmission(config, scene, geom, seq, exclude_effects=("doppler",)):
+    """Per shot-beam: (received / transmitted power or energy (W/W), power-weighted mean range
+    [m], range std [m], sub-ray fractions (n, b, k) after transmission and effects, the
+    effects' carrier phase [rad])."""
     frac = sub_ray_power_fractions(config, scene, geom)
     power, phase = effect_returns(config, scene, geom, seq, exclude=exclude_effects)
     scale = path_transmission(config, scene, geom) * power
     mean, std, tot = weighted_range_stats(frac, geom.sub_range_m)
-    return bud.ptx_w * tot * scale, mean, std, frac * scale[..., None], phase
+    return tot * scale, mean, std, frac * scale[..., None], phase
 
 
 def shot_doppler_hz(config, scene, geom):
@@ -177,7 +185,7 @@ def shot_doppler_hz(config, scene, geom):
     ``doppler``: f_d = 2 v / lambda of the closing speed left after any compensation."""
     if "doppler" not in scene.effects:
         return np.zeros_like(geom.closing_speed_mps)
-    return doppler_shift_hz(geom.doppler_speed_mps, config.laser.wavelength_m)
+    return doppler_shift_hz(geom.doppler_speed_mps, config.wavelength_m)
 
 
 @dataclass(frozen=True)

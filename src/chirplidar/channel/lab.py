@@ -39,7 +39,7 @@ def footprint_radius_m(config) -> float:
     if "turbulence" in config.effects.enabled and ch.cn2_m_minus_2_3 > 0:
         from ..atmosphere import gaussian_beam_parameters, long_term_beam_radius
 
-        lam = config.laser.wavelength_m
+        lam = config.wavelength_m
         w_lt = long_term_beam_radius(ch.beam_radius_m, lam, ch.distance_m, ch.cn2_m_minus_2_3)
         w_free = gaussian_beam_parameters(ch.beam_radius_m, lam, ch.distance_m)["w_m"]
         w = float(np.sqrt(w * w + w_lt * w_lt - w_free * w_free))  # the turbulent excess spread
@@ -83,7 +83,25 @@ def _point_target_returns(config: MissionConfig, batch: int, power_factor, phase
     return Returns(transmission=power_transmission(config), delay_s=round_trip_delay_s(config),
                    range_m=ch.distance_m, group_index=ch.group_index, power_factor=power_factor,
                    phase_rad=phase_rad, doppler_hz=doppler_hz, carrier_phase=ch.carrier_phase,
-                   echoes=echoes, batch=batch)
+                   echoes=echoes, background_power_w=lab_background_power_w(config), batch=batch)
+
+
+def lab_background_power_w(config: MissionConfig) -> float:
+    """Background light a pulsed receiver collects on the bench (W): ``background.source =
+    "radiance"`` through its filter and field of view; 0 for a chirped instrument or none. The
+    sun needs a place and a time: a survey's (``mission``)."""
+    bg = config.background
+    if config.pulse is None or bg is None or bg.source == "none":
+        return 0.0
+    if bg.source == "sun":
+        raise ValueError("background.source = 'sun' needs a survey (the sun's elevation at each "
+                         "shot); on the bench give background.source = 'radiance'")
+    from ..receiver.background import background_power_w
+
+    rx = config.pulse_receiver
+    return float(background_power_w(bg.radiance_w_m2_sr_m, rx.filter_bandwidth_m,
+                                    config.channel.telescope_diameter_m, rx.field_of_view_rad,
+                                    config.channel.optical_transmission ** 2))
 
 
 def simulate_lab(config: MissionConfig, tier: str, rng: np.random.Generator, *, batch: int = 1,

@@ -1,5 +1,5 @@
 """Command line ``chirplidar``: ``shot``, ``sweep``, ``run``, ``coverage``, ``view``, ``study``,
-``plan``, ``passes``, ``bench`` and ``sensitivity``.
+``compare``, ``plan``, ``passes``, ``bench`` and ``sensitivity``.
 
 Exit codes: 0 success, 1 a run finished but a requested product could not be made (e.g. no
 spectrum to plot), or ``run`` stopped by another fault (e.g. its Dask scheduler lost), 2 bad input
@@ -25,7 +25,7 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
-from . import commands_bench, commands_lab, commands_planning, commands_survey
+from . import commands_bench, commands_compare, commands_lab, commands_planning, commands_survey
 from .common import JSON_NOTE, SURVEY_TIERS, TIERS, UsageError, fix_mission_after_set
 
 __all__ = ["build_parser", "main", "UsageError", "TIERS", "SURVEY_TIERS", "DEBUG_ENV", "EXIT_IO"]
@@ -41,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (commands_lab.add_shot_parser, commands_lab.add_sweep_parser,
                 commands_survey.add_run_parser, commands_survey.add_coverage_parser,
                 commands_survey.add_view_parser, commands_planning.add_plan_parser,
-                commands_survey.add_study_parser, commands_bench.add_bench_parser,
+                commands_survey.add_study_parser, commands_compare.add_compare_parser,
+                commands_bench.add_bench_parser,
                 commands_planning.add_passes_parser, commands_lab.add_sensitivity_parser):
         add(sub)
     return parser
@@ -52,7 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-        if args.command in ("shot", "sweep", "study", "run"):
+        if args.command in ("shot", "sweep", "study", "run", "compare"):
             fix_mission_after_set(args.subparser, args)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
@@ -125,7 +126,7 @@ def _fault_line(command: str, exc: Exception) -> tuple[str, int] | None:
         # than r0): the user's input, in one line
         text = (str(exc).strip().splitlines() or [""])[0]
         return f"cannot simulate this configuration: {text}", 2
-    if command == "run":
+    if command in ("run", "compare"):
         text = (str(exc).strip().splitlines() or [""])[0]
         what = type(exc).__name__ + (f": {text}" if text else "")
         return f"failed: {what} ({DEBUG_ENV}=1 prints the traceback)", 1

@@ -8,7 +8,7 @@ import sys
 from typing import Sequence
 
 from .common import (JSON_NOTE, SENSITIVITY_TIERS, UsageError, add_common, dump_json, fmt_value,
-                     json_number, load_config, resolve_output_name)
+                     json_number, load_config, overrides_of, resolve_output_name)
 
 
 def _shot_record(result: dict, names: Sequence[str]) -> dict:
@@ -42,7 +42,7 @@ def cmd_shot(args) -> int:
     cfg = load_config(args)
     if is_survey(cfg):
         # A survey mission: one shot of the survey at its own geometry, never the bench channel.
-        result = simulate_mission_shot(args.mission, overrides=args.set or [], seed=args.seed,
+        result = simulate_mission_shot(args.mission, overrides=overrides_of(args), seed=args.seed,
                                        tier=args.tier, at_s=args.at_s,
                                        beam=0 if args.beam is None else args.beam,
                                        return_spectrum=bool(args.plot))
@@ -118,7 +118,7 @@ def cmd_sweep(args) -> int:
     if survey:
         # Each point re-plans the mission with the varied key: the shot at that point's geometry.
         ds = sweep_mission(args.mission, args.vary, args.start, args.stop, args.n,
-                           overrides=args.set or [], repeat=args.repeat, scale=args.scale,
+                           overrides=overrides_of(args), repeat=args.repeat, scale=args.scale,
                            seed=args.seed, tier=args.tier, at_s=args.at_s,
                            beam=0 if args.beam is None else args.beam,
                            progress=not args.no_progress)

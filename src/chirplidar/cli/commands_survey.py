@@ -8,8 +8,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from .common import (JSON_NOTE, SURVEY_TIERS, UsageError, tier_help, allow_negative_values,
-                     check_cluster_args, dump_json, json_number, output_path)
+from .common import (JSON_NOTE, SURVEY_TIERS, UsageError, add_instrument_option, tier_help,
+                     allow_negative_values, check_cluster_args, dump_json, json_number,
+                     output_path, overrides_of)
 
 
 class LargeRunConsent(argparse.Action):
@@ -44,7 +45,7 @@ def cmd_run(args) -> int:
     if args.dry_run:
         return _dry_run(args)
     try:
-        result = run_mission(args.mission, overrides=args.set or [], tier=args.tier, out=args.out,
+        result = run_mission(args.mission, overrides=overrides_of(args), tier=args.tier, out=args.out,
                              seed=args.seed, overwrite=args.overwrite,
                              progress=not args.no_progress, workers=args.workers,
                              scheduler=args.scheduler, resume=args.resume, yes=args.yes)
@@ -73,7 +74,7 @@ def _dry_run(args) -> int:
     with warnings.catch_warnings():   # the report lists them
         warnings.simplefilter("ignore", preflight.PlannerWarning)
         config, scene, plan, planner_warnings, estimate = preflight_run(
-            args.mission, overrides=args.set or [], tier=args.tier, seed=args.seed,
+            args.mission, overrides=overrides_of(args), tier=args.tier, seed=args.seed,
             cores=args.workers or 1)
     report = {"mission": str(args.mission), "tier": config.survey.tier,
               "platform": config.platform.kind, "scene": str(scene.path), **estimate.as_dict(),
@@ -308,6 +309,7 @@ def add_run_parser(sub) -> None:
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key (e.g. platform.uav.altitude_m=200, "
                         "survey.stop_s=60, chrp.F2=300e6); repeatable")
+    add_instrument_option(p)
     p.add_argument("--tier", choices=SURVEY_TIERS, default=None,
                    help=tier_help("override survey.tier: "))
     p.add_argument("--out", metavar="PATH.nc", default=None,

@@ -87,7 +87,7 @@ def load_config(args) -> Any:
     of a survey) are refused on a mission without a ``[survey]`` section."""
     from ..config import load_mission
 
-    cfg = load_mission(args.mission, args.set or [])
+    cfg = load_mission(args.mission, overrides_of(args))
     given = [o for o, v in (("--at-s", getattr(args, "at_s", None)),
                             ("--beam", getattr(args, "beam", None))) if v is not None]
     if given and cfg.survey is None:
@@ -141,6 +141,7 @@ def add_common(p: argparse.ArgumentParser, *, mission_positional: bool = True) -
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key (thesis names accepted: chrp.F2=300e6, "
                         "sys.rsel=PIN, atm.Pattn=40); repeatable")
+    add_instrument_option(p)
     p.add_argument("--seed", type=int, default=None,
                    help="random seed (default: the mission's seed)")
     p.add_argument("--tier", choices=TIERS, default="rf",
@@ -150,6 +151,22 @@ def add_common(p: argparse.ArgumentParser, *, mission_positional: bool = True) -
                         "clock (default: the first shot whose beam hits the terrain)")
     p.add_argument("--beam", type=int, default=None, metavar="K",
                    help="survey missions: evaluate beam K of the shot (default 0)")
+
+
+def add_instrument_option(p: argparse.ArgumentParser) -> None:
+    """``--instrument FILE``: fly another instrument file (``--set instrument=FILE``)."""
+    p.add_argument("--instrument", metavar="FILE.toml", default=None,
+                   help="fly this instrument file instead of the mission's own instrument "
+                        "(e.g. instruments/glas.toml); the mission keeps its path and scene")
+
+
+def overrides_of(args) -> list[str]:
+    """``--set`` with ``--instrument`` as its ``instrument=`` override (a path made absolute:
+    chunks are recomputed elsewhere)."""
+    sets = list(args.set or [])
+    if getattr(args, "instrument", None):
+        sets.append(f"instrument={Path(args.instrument).resolve()}")
+    return sets
 
 
 def allow_negative_values(p: argparse.ArgumentParser) -> None:

@@ -15,7 +15,7 @@ from pydantic import ValidationError
 
 from .aliases import THESIS_TO_KEY, resolve_key
 from .keys import KeyIndex, model_keys
-from .models import MissionConfig
+from .models import CHIRPED_SECTIONS, PULSED_SECTIONS, MissionConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -122,12 +122,53 @@ PLATFORM_SECTIONS = frozenset({"platform.uav", "platform.aircraft", "platform.or
                                "platform.tle"})
 
 
+#: The sections that describe the instrument (what ``instrument = "file.toml"`` and
+#: ``--instrument`` bring in); the rest of a mission says where and when it flies.
+INSTRUMENT_SECTIONS = frozenset(CHIRPED_SECTIONS + PULSED_SECTIONS + ("channel", "apd",
+                                                                       "effects"))
+
+
+def is_instrument_key(key: str) -> bool:
+    """Whether a dotted key belongs to the instrument (:data:`INSTRUMENT_SECTIONS`)."""
+    return key.split(".", 1)[0] in INSTRUMENT_SECTIONS
+
+
+def read_instrument_flat(path: str | Path, source: str) -> dict[str, Any]:
+    """An instrument file's instrument keys (its other keys, such as a bench ``seed``, stay
+    with the file). ``source`` names who asked for it, for the error."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{source}: instrument file {path} does not exist")
+    flat = {k: v for k, v in read_mission_flat(path).items() if is_instrument_key(k)}
+    if not flat:
+        raise ConfigError(f"{source}: {path} holds no instrument sections "
+                          f"([{'], ['.join(sorted(INSTRUMENT_SECTIONS))}])")
+    return flat
+
+
+def with_instrument(flat: Mapping[str, Any], instrument: Mapping[str, Any]) -> dict[str, Any]:
+    """The mission ``flat`` flown with another instrument: its instrument keys replaced, and
+    its shot rate (``survey.prf_hz``) the new instrument's own; its ``survey.tier`` too, when
+    the mission's tier does not fly the new instrument's kind (a pulsed instrument flies the
+    pulsed tier only)."""
+    from ..tiers.registry import tiers_flying
+
+    out = {k: v for k, v in flat.items() if not is_instrument_key(k) and k != "survey.prf_hz"}
+    if instrument:
+        kind = "pulsed" if any(k.startswith("pulse.") for k in instrument) else "chirped"
+        if out.get("survey.tier") not in tiers_flying(kind):
+            out.pop("survey.tier", None)
+    return {**out, **instrument}
+
+
 def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     """The mission file as canonical dotted keys (thesis names translated).
 
     A top-level ``extends = "other.toml"`` (relative to this file) loads that file first and lets
     this one override it key by key, so a variant states only what differs and why; a
-    ``[platform.X]`` section here replaces the parent's other platform sections.
+    ``[platform.X]`` section here replaces the parent's other platform sections. A top-level
+    ``instrument = "file.toml"`` (relative to this file) flies that file's instrument
+    (:data:`INSTRUMENT_SECTIONS`): the mission then states no instrument keys of its own.
     """
     path = Path(path)
     if path.is_dir():
@@ -144,10 +185,20 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
     parent = tree.pop("extends", None)
-    if parent is not None and not (isinstance(parent, str) and parent.strip()):
-        raise ConfigError(f"{path}: 'extends' must name a mission file (a path in quotes), "
-                          f"got {parent!r}")
+    instrument = tree.pop("instrument", None)
+    for name, value in (("extends", parent), ("instrument", instrument)):
+        if value is not None and not (isinstance(value, str) and value.strip()):
+            raise ConfigError(f"{path}: '{name}' must name a file (a path in quotes), "
+                              f"got {value!r}")
     flat = _canonical(_flatten(tree), str(path))
+    if instrument is not None:
+        own = sorted(k for k in flat if is_instrument_key(k))
+        if own:
+            raise ConfigError(f"{path}: names instrument = {instrument!r} and also sets "
+                              f"{', '.join(own[:3])}{' ...' if len(own) > 3 else ''}: instrument "
+                              "keys go in the instrument file (or one that extends it)")
+        flat.update(read_instrument_flat((path.parent / instrument).resolve(),
+                                         f"{path}: instrument = {instrument!r}"))
     if parent is None:
         return flat
     base_path = (path.parent / parent).resolve()
@@ -168,6 +219,8 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     if chosen:
         base = {k: v for k, v in base.items()
                 if not any(k.startswith(sec + ".") for sec in PLATFORM_SECTIONS - chosen)}
+    if instrument is not None:   # the named instrument replaces the parent's
+        base = {k: v for k, v in base.items() if not is_instrument_key(k)}
     return {**base, **flat}
 
 
@@ -175,9 +228,16 @@ def load_mission(path: str | Path, overrides: Iterable[str] | Mapping[str, Any] 
     """Load and validate a mission file, applying ``--set`` style overrides.
 
     ``overrides`` is either ``["chrp.F2=300e6", ...]`` or a mapping of (thesis or project) key to value.
+    The key ``instrument`` (:data:`INSTRUMENT_OVERRIDE`, ``--instrument``) flies another
+    instrument file instead of the mission's own (:func:`with_instrument`).
     """
     flat = read_mission_flat(path)
     return apply_overrides(flat, overrides, str(path))
+
+
+#: The override that flies another instrument file: ``--set instrument=PATH`` (what
+#: ``--instrument PATH`` passes), applied before the others so that they change its keys.
+INSTRUMENT_OVERRIDE = "instrument"
 
 
 def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[str, Any],
@@ -185,10 +245,19 @@ def apply_overrides(flat: Mapping[str, Any], overrides: Iterable[str] | Mapping[
     if isinstance(overrides, (str, bytes)):
         raise ConfigError(f"overrides must be a list of KEY=VALUE strings or a mapping of key to "
                           f"value; got the string {overrides!r} (write [{overrides!r}])")
-    items = overrides.items() if isinstance(overrides, Mapping) else (parse_set(s) for s in overrides)
+    items = list(overrides.items() if isinstance(overrides, Mapping)
+                 else (parse_set(s) for s in overrides))
     merged = dict(flat)
+    for key, value in items:
+        if key == INSTRUMENT_OVERRIDE:
+            if not (isinstance(value, str) and value.strip()):
+                raise ConfigError(f"--instrument: expected the path of an instrument file, "
+                                  f"got {value!r}")
+            merged = with_instrument(merged, read_instrument_flat(value, "--instrument"))
     changed = []
     for key, value in items:
+        if key == INSTRUMENT_OVERRIDE:
+            continue
         proj = resolve_key(key)
         if not is_known_key(proj):
             raise ConfigError(unknown_key_message(key, "--set"))

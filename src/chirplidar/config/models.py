@@ -15,6 +15,7 @@ from .base import StrictModel
 from .models_effects import Effects
 from .models_instrument import (APD, PIN, Balanced, Channel, Heterodyne, Laser, Modulator,
                                 Processing, Simulation, Sweep, System, Transmitter, Waveform)
+from .models_pulsed import Background, Digitizer, PhotonCounting, Pulse, PulseRanging, PulseReceiver
 from .models_survey import AttitudeConfig, Beams, Platform, SceneRef, SurveyRun
 
 #: A chirp's frequency ramp must span at least this many samples to be a chirp at all.
@@ -25,21 +26,39 @@ MAX_SEED = 2**63 - 1
 from ..tiers.budget import IF_HALF_WIDTH_FACTOR  # noqa: E402
 
 
-class MissionConfig(StrictModel):
-    """A whole transceiver configuration (the ``instrument`` of a mission)."""
+#: The chirped transceiver's own sections (thesis Tables 4.1-4.9): all present, or none.
+CHIRPED_SECTIONS = ("simulation", "system", "processing", "waveform", "laser", "modulator",
+                    "transmitter", "balanced", "pin", "heterodyne")
+#: A pulsed altimeter's own sections (thesis Tables 2.1-2.2; ``config.models_pulsed``).
+PULSED_SECTIONS = ("pulse", "pulse_receiver", "photon_counting", "digitizer", "pulse_ranging")
+#: What a pulsed instrument needs besides [pulse], by its detector.
+PULSED_REQUIRED = ("pulse_receiver", "digitizer", "pulse_ranging")
 
-    simulation: Simulation
-    system: System
-    processing: Processing
-    waveform: Waveform
-    laser: Laser
-    modulator: Modulator
-    transmitter: Transmitter
+
+class MissionConfig(StrictModel):
+    """A whole transceiver configuration (the ``instrument`` of a mission) and, for a survey,
+    where it flies. The instrument is chirped (the sections of :data:`CHIRPED_SECTIONS`, thesis
+    Ch. 4) or pulsed (``[pulse]`` and the sections of :data:`PULSED_SECTIONS`, thesis Ch. 2);
+    ``[channel]`` and ``[apd]`` serve both."""
+
+    simulation: Simulation | None = None
+    system: System | None = None
+    processing: Processing | None = None
+    waveform: Waveform | None = None
+    laser: Laser | None = None
+    modulator: Modulator | None = None
+    transmitter: Transmitter | None = None
     channel: Channel
-    apd: APD
-    balanced: Balanced
-    pin: PIN
-    heterodyne: Heterodyne
+    apd: APD | None = None
+    balanced: Balanced | None = None
+    pin: PIN | None = None
+    heterodyne: Heterodyne | None = None
+    pulse: Pulse | None = None
+    pulse_receiver: PulseReceiver | None = None
+    photon_counting: PhotonCounting | None = None
+    digitizer: Digitizer | None = None
+    pulse_ranging: PulseRanging | None = None
+    background: Background | None = None
     effects: Effects = Effects()
     sweep: Sweep = Sweep()
     seed: int = Field(ge=0, le=MAX_SEED, description="seed of the run's numpy Generator")
@@ -49,6 +68,67 @@ class MissionConfig(StrictModel):
     attitude: AttitudeConfig | None = None
     beams: Beams | None = None
     survey: SurveyRun | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_kind_of_instrument(cls, data):
+        """A chirped or a pulsed instrument, never a mixture; a survey's tier and shot rate
+        default to the instrument's own (see :func:`instrument_survey_defaults`)."""
+        if not isinstance(data, dict):
+            return data
+        pulsed = "pulse" in data
+        if pulsed:
+            mixed = [s for s in CHIRPED_SECTIONS if s in data]
+            if mixed:
+                raise ValueError(
+                    f"a pulsed instrument ([pulse]) takes no chirped-transceiver sections; "
+                    f"remove [{'], ['.join(mixed)}] (chirp keys), or remove [pulse] for a "
+                    "chirped instrument")
+            missing = [s for s in PULSED_REQUIRED if s not in data]
+            detector = (data.get("pulse_receiver") or {}).get("detector") \
+                if isinstance(data.get("pulse_receiver"), dict) else None
+            if detector in ("apd", "photon_counting") and detector not in data:
+                missing.append(detector)
+        else:
+            stray = [s for s in PULSED_SECTIONS if s in data]
+            if stray:
+                raise ValueError(
+                    f"[{'], ['.join(stray)}] belong to a pulsed instrument, which has a [pulse] "
+                    "section; this one has none (a chirped instrument takes none of them)")
+            missing = [s for s in CHIRPED_SECTIONS + ("apd",) if s not in data]
+        if missing:
+            kind = "a pulsed" if pulsed else "a chirped"
+            raise ValueError(f"{kind} instrument needs the section(s) [{'], ['.join(missing)}]")
+        survey = data.get("survey")
+        if isinstance(survey, dict):
+            data = {**data, "survey": {**instrument_survey_defaults(data), **survey}}
+        return data
+
+    @model_validator(mode="after")
+    def _pulsed(self):
+        if self.pulse is None:
+            return self
+        dig = self.digitizer
+        if self.pulse.duration_s * dig.sample_rate_hz < 1.0:
+            raise ValueError(
+                f"pulse.duration_s = {self.pulse.duration_s:g} s is shorter than one sample of "
+                f"digitizer.sample_rate_hz = {dig.sample_rate_hz:g} Hz "
+                f"({1.0 / dig.sample_rate_hz:g} s): the digitizer cannot resolve the pulse; "
+                "raise the sample rate")
+        window_s = dig.record_samples / dig.sample_rate_hz
+        if window_s >= 1.0 / self.pulse.prf_hz:
+            raise ValueError(
+                f"pulse.prf_hz = {self.pulse.prf_hz:g} Hz fires every "
+                f"{1.0 / self.pulse.prf_hz:g} s, within the range window of "
+                f"digitizer.record_samples / sample_rate_hz = {window_s:g} s: successive "
+                "pulses' returns would overlap in the window; lower the PRF or the record")
+        sv = self.survey
+        if sv is not None and abs(sv.prf_hz - self.pulse.prf_hz) > 1e-9 * self.pulse.prf_hz:
+            raise ValueError(
+                f"survey.prf_hz = {sv.prf_hz:g} Hz differs from the pulsed laser's "
+                f"pulse.prf_hz = {self.pulse.prf_hz:g} Hz: omit survey.prf_hz (a pulsed "
+                "instrument shoots at its laser's rate)")
+        return self
 
     @model_validator(mode="after")
     def _campaign(self):
@@ -65,13 +145,23 @@ class MissionConfig(StrictModel):
                              "span (survey.start_s, stop_s), not both")
         return self
 
+    @property
+    def kind(self) -> str:
+        """``"pulsed"`` or ``"chirped"``: the instrument's kind."""
+        return "pulsed" if self.pulse is not None else "chirped"
+
+    @property
+    def wavelength_m(self) -> float:
+        """The carrier wavelength: the pulse's or the laser's."""
+        return (self.pulse if self.pulse is not None else self.laser).wavelength_m
+
     @model_validator(mode="after")
     def _weak_turbulence(self):
         ch = self.channel
         if "turbulence" in self.effects.enabled and ch.free_space and ch.cn2_m_minus_2_3 > 0:
             from ..atmosphere.turbulence import rytov_variance
 
-            sigma2 = float(rytov_variance(ch.cn2_m_minus_2_3, self.laser.wavelength_m,
+            sigma2 = float(rytov_variance(ch.cn2_m_minus_2_3, self.wavelength_m,
                                           ch.distance_m, "plane"))
             if sigma2 >= 1.0:
                 raise ValueError(
@@ -83,6 +173,8 @@ class MissionConfig(StrictModel):
 
     @model_validator(mode="after")
     def _sampling(self):
+        if self.pulse is not None:
+            return self
         nyq = self.simulation.sample_rate_hz / 2
         f_top = self.waveform.f_stop_hz + self.waveform.f_offset_hz
         if f_top >= nyq:
@@ -147,3 +239,17 @@ class MissionConfig(StrictModel):
     @property
     def n_samples(self) -> int:
         return int(round(self.simulation.duration_s * self.simulation.sample_rate_hz))
+
+
+def instrument_survey_defaults(data: dict) -> dict:
+    """A survey's tier and shot rate when the mission leaves them out: the instrument's own.
+    A pulsed instrument flies the pulsed tier at its laser's PRF; a chirped one the link tier
+    at its record rate 1 / (processing.averages x waveform.chirp_period_s), one record after
+    another. ``chirplidar compare`` relies on these: one mission, each instrument at its own."""
+    try:
+        if "pulse" in data:
+            return {"tier": "pulsed", "prf_hz": data["pulse"]["prf_hz"]}
+        rate = 1.0 / (data["processing"]["averages"] * data["waveform"]["chirp_period_s"])
+    except (KeyError, TypeError, ZeroDivisionError):
+        return {}  # the sections' own validation names what is missing
+    return {"tier": "link", "prf_hz": rate}

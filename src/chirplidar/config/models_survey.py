@@ -225,9 +225,13 @@ def _utc(text: str):
 class SurveyRun(StrictModel):
     """What to run: shot clock, time span, tier, detection, footprint sampling, chunking."""
 
-    tier: Literal[TIER_NAMES]  # type: ignore[valid-type]
+    tier: Literal[TIER_NAMES] = Field(  # type: ignore[valid-type]
+        description="the fidelity tier; omitted = the instrument's own: 'pulsed' for a pulsed "
+        "instrument, 'link' for a chirped one")
     prf_hz: float = Field(gt=0, description="record (shot) rate; each record averages "
-                          "processing.averages chirps (sys.avg)")
+                          "processing.averages chirps (sys.avg). Omitted = the instrument's "
+                          "own: pulse.prf_hz, or the record rate 1 / (processing.averages x "
+                          "waveform.chirp_period_s)")
     start_s: float | None = Field(None, description="first shot time, s after the path start "
                                   "(UAV, aircraft) or after epoch_utc (satellite: a design "
                                   "orbit's nadir crosses the scene centre then)")

@@ -132,6 +132,10 @@ def measure_chunk(config, scene, geom, seq, progress=None) -> dict:
         return measure.measure_rf(config, scene, geom, seq, progress=progress)
     if config.survey.tier == "baseband":
         return measure.measure_baseband(config, scene, geom, seq, progress=progress)
+    if config.survey.tier == "pulsed":
+        from .measure_pulsed import measure_pulsed
+
+        return measure_pulsed(config, scene, geom, seq, progress=progress)
     meas = measure.measure_link(config, scene, geom, seq)
     if progress is not None:
         progress(int(geom.range_true_m.size))
@@ -143,18 +147,24 @@ def _height_sigma_m(config, geom, meas, r_meas, det) -> np.ndarray:
     elsewhere): the Cramer-Rao spread of the beat frequency (Rife & Boorstyn 1974,
     ``tiers.link.crb_sigma_f_hz``) at the shot's SNR, for a tone of the duration 0.886 / (3 dB
     width) that its beat width implies, turned into range by c / (2 n kappa) and into height by
-    the height change per metre of range along the beam (its vertical component)."""
+    the height change per metre of range along the beam (its vertical component). A pulsed
+    instrument's range bound comes from its tier (``range_sigma``: the arrival time's
+    Cramer-Rao bound of its expected waveform)."""
     from ..channel.lab import lab_budget
     from ..tiers.link import crb_sigma_f_hz
     from ..units import SPEED_OF_LIGHT_M_S
 
-    width = meas["beat_width"]
-    ok = det & (width > 0)
-    snr = 10.0 ** (np.where(ok, meas["snr_db"], 0.0) / 10.0)
-    t_eff = 0.886 / np.where(ok, width, 1.0)
-    rate = lab_budget(config).rate_hz_per_s
-    sigma_r = (crb_sigma_f_hz(snr, config.processing.rbw_hz, t_eff) * SPEED_OF_LIGHT_M_S
-               / (2.0 * config.channel.group_index * rate))
+    if config.kind == "pulsed":   # the pulsed tier's own bound for its estimator
+        sigma_r = meas["range_sigma"]
+        ok = det & np.isfinite(sigma_r)
+    else:
+        width = meas["beat_width"]
+        ok = det & (width > 0)
+        snr = 10.0 ** (np.where(ok, meas["snr_db"], 0.0) / 10.0)
+        t_eff = 0.886 / np.where(ok, width, 1.0)
+        rate = lab_budget(config).rate_hz_per_s
+        sigma_r = (crb_sigma_f_hz(snr, config.processing.rbw_hz, t_eff) * SPEED_OF_LIGHT_M_S
+                   / (2.0 * config.channel.group_index * rate))
     r = np.where(ok, r_meas, 0.0)
     dz_dr = geom.point_at_range(r + 1.0)[..., 2] - geom.point_at_range(r)[..., 2]
     return np.where(ok, sigma_r * np.abs(dz_dr), np.nan)
@@ -189,6 +199,7 @@ def per_shot_variables(config, geom, meas) -> dict:
         "received_power": meas["received_power"],
         "beat_frequency": meas["beat_frequency"],
         "beat_width": meas["beat_width"],
+        "pulse_width": meas.get("pulse_width", np.full((n, b), nan)),
         "footprint_diameter": 2.0 * geom.beam_radius_m,
         "detected": meas["detected"],
         "surface_type": np.where(hit, geom.material, NO_SURFACE_CODE),

@@ -39,6 +39,9 @@ TIERS = TIER_NAMES
 #: A CW chirped lidar's laser above this is suspicious: the thesis's sources are a few mW
 #: (8.58 mW, Table 4.4) and a fibre amplifier gives a few W; more is probably mW typed as W.
 MAX_PLAUSIBLE_LASER_W = 5.0
+#: A Q-switched altimeter's pulse above this is suspicious: GLAS fired 75 mJ, MOLA 45 mJ
+#: (thesis Tables 2.1-2.2); 1 J is beyond any flown one (mJ typed as J?).
+MAX_PLAUSIBLE_PULSE_J = 1.0
 #: Pointing jitter above this (per axis, rms) is more than any survey platform's: small-UAV
 #: gimbals hold ~1e-4 rad, aircraft INS-stabilized mounts ~1e-5, ICESat-2 ~1e-5 rad.
 MAX_PLAUSIBLE_JITTER_RAD = 1e-2
@@ -107,10 +110,27 @@ def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None)
             get_tier(tier).check(instrument_from_config(config))
         except ValueError as exc:
             raise ConfigError(f"{src}: survey.tier = {tier!r}: {exc}") from None
+    if config.survey is not None and config.kind == "pulsed":
+        check_pulsed_survey(config, src)
     plan = plan_survey(config, scene, src)
     measure.check_range_window(config, src)
     check_crosses_scene(plan, scene, config, src)
     return config, scene, plan
+
+
+def check_pulsed_survey(config, src: str) -> None:
+    """ConfigError for what a pulsed instrument's survey lacks: its background light, and a
+    range window of its own (the digitizer's record is the window)."""
+    if config.background is None:
+        raise ConfigError(f"{src}: a pulsed instrument's survey needs a [background] section "
+                          "(source = 'sun', 'radiance' or 'none'): direct detection counts the "
+                          "light in its field of view")
+    if config.survey.range_window_m is not None:
+        dig = config.digitizer
+        raise ConfigError(f"{src}: survey.range_window_m is the chirped receivers' range gate; a "
+                          f"pulsed instrument's window is its digitizer's record "
+                          f"(digitizer.record_samples = {dig.record_samples} at "
+                          f"{dig.sample_rate_hz:g} Hz): remove survey.range_window_m")
 
 
 class PlannerWarning(UserWarning):
@@ -119,26 +139,39 @@ class PlannerWarning(UserWarning):
 
 def planner_warnings(config, scene, plan) -> list[str]:
     """One sentence for each legal but implausible value of a run (see the module docstring)."""
-    out = []
-    power = config.laser.power_w
-    if power > MAX_PLAUSIBLE_LASER_W:
-        out.append(f"laser.power_w = {power:g} W is more than a CW chirped lidar's laser "
-                   f"(> {MAX_PLAUSIBLE_LASER_W:g} W; the thesis's is 8.58 mW): is it mW typed "
-                   "as W?")
+    out = _instrument_warnings(config)
     jitter = config.attitude.jitter_rad_rms
     if jitter > MAX_PLAUSIBLE_JITTER_RAD:
         out.append(f"attitude.jitter_rad_rms = {jitter:g} rad ({np.degrees(jitter):.3g} deg) "
                    f"per axis is more than any survey platform's pointing jitter (> "
                    f"{MAX_PLAUSIBLE_JITTER_RAD:g} rad): is it in degrees or mrad?")
+    out += _flight(config, plan)
+    out += _line_spacing(config, scene)
+    out += _clearance(config, scene, plan)
+    return out
+
+
+def _instrument_warnings(config) -> list[str]:
+    """A power typed in the wrong unit; a receiver that cannot see its beat."""
+    out = []
+    if config.kind == "pulsed":
+        energy = config.pulse.energy_j
+        if energy > MAX_PLAUSIBLE_PULSE_J:
+            out.append(f"pulse.energy_j = {energy:g} J is more than any altimeter's Q-switched "
+                       f"pulse (> {MAX_PLAUSIBLE_PULSE_J:g} J; GLAS's is 75 mJ): is it mJ typed "
+                       "as J?")
+        return out
+    power = config.laser.power_w
+    if power > MAX_PLAUSIBLE_LASER_W:
+        out.append(f"laser.power_w = {power:g} W is more than a CW chirped lidar's laser "
+                   f"(> {MAX_PLAUSIBLE_LASER_W:g} W; the thesis's is 8.58 mW): is it mW typed "
+                   "as W?")
     if config.system.receiver == "coherent" and config.balanced.lo_power_w <= 0:
         out.append("balanced.lo_power_w (COH.P_LO) = 0: a coherent receiver without a local "
                    "oscillator detects nothing; every shot will be below the detection threshold")
     if config.waveform.vpp_v <= 0:
         out.append("waveform.vpp_v (chrp.Vpp) = 0: no chirp drives the modulator, so there is "
                    "no beat; every shot will be below the detection threshold")
-    out += _flight(config, plan)
-    out += _line_spacing(config, scene)
-    out += _clearance(config, scene, plan)
     return out
 
 

@@ -54,6 +54,7 @@ from ..channel.footprint import footprint_returns, received, shot_doppler_hz
 from ..channel.lab import lab_budget
 from ..config.instrument import instrument_from_config
 from ..config.loader import ConfigError
+from ..tiers.echoes import Echoes
 from ..tiers.model import Instrument, Returns
 from ..tiers.registry import TIER_NAMES, TIERS
 from . import measure
@@ -196,13 +197,22 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
         raise ConfigError(f"--tier {tier}: a survey shot runs the tiers {', '.join(TIER_NAMES)}")
     prep = prepare_mission(mission, overrides=overrides, seed=seed)
     config, scene = prep.config, prep.scene
-    if config.system.modulation != "fm_chirp":
+    if config.kind == "chirped" and config.system.modulation != "fm_chirp":
         raise ConfigError(f"{prep.source}: survey shots model FM chirps "
                           "(system.modulation = 'fm_chirp')")
+    try:
+        TIERS[tier].check(instrument_from_config(config))
+    except ValueError as exc:
+        raise ConfigError(f"{prep.source}: --tier {tier}: {exc}") from None
     geom, seq, i, k = locate_shot(prep, at_s=at_s, beam=beam, root=root)
     j = int(beam)
-    ptx_w = lab_budget(config).ptx_w
     instrument = instrument_from_config(config)
+    if config.kind == "pulsed":
+        returns, r_mean = _pulsed_shot_returns(prep, geom, seq, i, j)
+        return MissionShot(instrument=instrument, returns=returns, tier=tier, seq=seq,
+                           flat=i * geom.range_true_m.shape[1] + j,
+                           geometry=_shot_geometry(scene, geom, i, j, k, r_mean))
+    ptx_w = lab_budget(config).ptx_w
     f_d = shot_doppler_hz(config, scene, geom)
     if tier == "link":
         psig, r_mean = received(config, scene, geom, seq)[:2]
@@ -220,9 +230,16 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
             doppler_hz=float(f_d[i, j]))
     else:
         returns = measure.rf_shot_returns(config, instrument, ptx_w, geom, fr, i, j, f_d)
+    return MissionShot(instrument=instrument, returns=returns, tier=tier, seq=seq,
+                       flat=i * geom.range_true_m.shape[1] + j,
+                       geometry=_shot_geometry(scene, geom, i, j, k, r_mean))
+
+
+def _shot_geometry(scene, geom, i: int, j: int, k: int, r_mean) -> dict:
+    """The shot's :data:`GEOMETRY_KEYS`."""
     code = int(geom.material[i, j])
     xyz = geom.hit_xyz_m[i, j]
-    geometry = {
+    return {
         "t_s": float(geom.t_s[i]), "beam": j, "shot_index": int(k),
         "range_m": float(geom.range_true_m[i, j]), "footprint_range_m": float(r_mean[i, j]),
         "x_m": float(xyz[0]), "y_m": float(xyz[1]), "surface_height_m": float(xyz[2]),
@@ -231,8 +248,28 @@ def mission_shot_config(mission, *, tier: str = "rf", at_s=None, beam: int = 0, 
         "off_nadir_deg": float(np.degrees(geom.off_nadir_rad[i, j])),
         "platform_height_m": float(geom.platform_xyh[i, 2]),
     }
-    return MissionShot(instrument=instrument, returns=returns, tier=tier, seq=seq,
-                       flat=i * geom.range_true_m.shape[1] + j, geometry=geometry)
+
+
+def _pulsed_shot_returns(prep, geom, seq, i: int, j: int):
+    """A pulsed instrument's returns of shot ``i``, beam ``j``, as its run builds them
+    (``measure_pulsed``: the window centred on the shot's own range), and the (n, b) mean
+    ranges."""
+    from ..channel.footprint import footprint_transmission
+    from .measure_pulsed import background_power_per_shot_w, pulsed_batch_returns
+    from .preflight import check_pulsed_survey
+
+    config = prep.config
+    check_pulsed_survey(config, prep.source)
+    transmission, r_mean, _, frac, _ = footprint_transmission(config, prep.scene, geom, seq)
+    if not (np.isfinite(r_mean[i, j]) and transmission[i, j] > 0):
+        raise ConfigError(f"{prep.source}: beam {j} of the shot at t = {geom.t_s[i]:g} s "
+                          "receives no energy from its footprint")
+    background = background_power_per_shot_w(config, prep.scene, geom)
+    flat = np.array([i * transmission.shape[1] + j])
+    returns = pulsed_batch_returns(config, geom, transmission, frac, background, flat)
+    e = returns.echoes   # one shot's echoes as (k,): shared by every record of a --batch
+    one = Echoes(e.delay_offset_s[0], e.power_weight[0], e.phase_rad[0])
+    return dataclasses.replace(returns, echoes=one), r_mean
 
 
 def simulate_mission_shot(mission, *, tier: str = "rf", at_s=None, beam: int = 0, overrides=(),

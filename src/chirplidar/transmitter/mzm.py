@@ -40,6 +40,18 @@ def mzm_mean_power_transmission(train, bias_v: float, v_pi_v: float) -> float:
     return float(np.mean(0.5 * (1.0 + np.cos(2 * alpha) * j0(2 * beta * w))))
 
 
+def mzm_peak_power_transmission(train, bias_v: float, v_pi_v: float) -> float:
+    """Largest instantaneous |E_out/E_0|^2 = max cos^2(alpha + beta w s) over the drive
+    (|s| <= 1, w up to the envelope's largest): 1 when the swing reaches a transmission peak
+    (alpha + beta w s a multiple of pi), else the larger end of the swing."""
+    alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
+    swing = abs(beta) * float(np.max(np.abs(train.envelope_samples())))
+    lo, hi = alpha - swing, alpha + swing
+    if np.floor(hi / np.pi) >= np.ceil(lo / np.pi):   # a multiple of pi inside [lo, hi]
+        return 1.0
+    return float(max(np.cos(lo) ** 2, np.cos(hi) ** 2))
+
+
 def mzm_fundamental_field(train, bias_v: float, v_pi_v: float, w: np.ndarray) -> np.ndarray:
     """Amplitude of the field's component at the chirp phase, |2 sin(alpha) J1(beta w)|."""
     alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
