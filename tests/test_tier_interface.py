@@ -121,12 +121,24 @@ def test_unsupported_settings_are_refused_before_any_work(name, overrides, setti
 
 
 def test_every_tier_declares_what_it_supports():
-    # The rf tier is the reference: it models every receiver and modulation the others do.
+    # The rf tier is the reference for the chirped instruments: it models every receiver and
+    # modulation the other chirped tiers do. A pulsed tier flies pulsed instruments only, with
+    # the direct detectors of a short-pulse altimeter (thesis Ch. 2: GLAS, MOLA), no
+    # modulation or Doppler recovery, footprint echoes (the waveform's spreading) and no
+    # spectrum.
     rf = TIERS["rf"].supports
+    assert set(tiers_flying("chirped")) | set(tiers_flying("pulsed")) == set(TIERS)
+    assert tiers_flying("pulsed") == ("pulsed",)
     for name, tier in TIERS.items():
         assert tier.name == name and tier.summary
-        assert tier.supports.receivers <= rf.receivers
-        assert tier.supports.modulations <= rf.modulations
+        if name in tiers_flying("chirped"):
+            assert tier.supports.receivers <= rf.receivers
+            assert tier.supports.modulations <= rf.modulations
+    pulsed = TIERS["pulsed"].supports
+    assert pulsed.kinds == frozenset({"pulsed"})
+    assert pulsed.receivers == frozenset({"apd", "photon_counting"})
+    assert not pulsed.modulations and not pulsed.doppler_recovery
+    assert pulsed.echoes and not pulsed.spectrum
 
 
 def test_flags_come_as_per_shot_masks():

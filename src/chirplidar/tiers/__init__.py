@@ -1,5 +1,6 @@
 """Fidelity tiers: one interface, ``simulate(instrument, returns, rng) -> Measurements``, three
-costs (:data:`TIERS`: rf, baseband, link). See :mod:`chirplidar.tiers.model`."""
+costs for the chirped instruments (:data:`TIERS`: rf, baseband, link) and the pulsed tier for
+short-pulse altimeters. See :mod:`chirplidar.tiers.model`."""
 
 from __future__ import annotations
 
@@ -20,11 +21,17 @@ __all__ = [
     "simulate_rf",
     "simulate_baseband",
     "simulate_link",
+    "simulate_pulsed",
 ]
 
 # The tier modules load scipy: imported on first use (PEP 562).
 __getattr__, __dir__ = lazy_exports(
     __name__,
-    {"rf": ("simulate_rf",), "baseband": ("simulate_baseband",), "link": ("simulate_link",)},
+    {
+        "rf": ("simulate_rf",),
+        "baseband": ("simulate_baseband",),
+        "link": ("simulate_link",),
+        "pulsed": ("simulate_pulsed",),
+    },
 )
 del lazy_exports
