@@ -307,6 +307,9 @@ def _one_line_error(fn, exc, match):
 
 @pytest.mark.parametrize("make, match", [
     (lambda: glas(duration_s=0.5e-9), r"pulse.duration_s = 5e-10 s .*digitizer.sample_rate_hz"),
+    (lambda: dataclasses.replace(glas(), pulse=Pulse(
+        wavelength_m=1064e-9, energy_j=75e-3, duration_s=5e-9, shape="gaussian", prf_hz=2e6)),
+     r"record_samples / digitizer.sample_rate_hz = 5.44e-07 s .*1 / pulse.prf_hz = 5e-07 s"),
     (lambda: glas(apd=False), r"\[apd\] section"),
     (lambda: dataclasses.replace(glas(detector="photon_counting"), photon_counting=None),
      r"\[photon_counting\] section"),

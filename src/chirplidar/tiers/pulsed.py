@@ -96,6 +96,13 @@ def check_pulsed(instrument: Instrument) -> None:
             f"pulse.duration_s = {dur:g} s is shorter than one digitizer sample "
             f"(1 / digitizer.sample_rate_hz = {1.0 / fs:g} s): the pulse falls between samples"
         )
+    window = instrument.digitizer.record_samples / fs
+    if window >= 1.0 / instrument.pulse.prf_hz:
+        raise ValueError(
+            f"digitizer.record_samples / digitizer.sample_rate_hz = {window:g} s is not shorter "
+            f"than the pulse period 1 / pulse.prf_hz = {1.0 / instrument.pulse.prf_hz:g} s: "
+            "the next pulse would overlap the range window"
+        )
 
 
 def _detector(instrument: Instrument) -> _Detector:
@@ -208,7 +215,7 @@ def _digitize(instrument: Instrument, det: _Detector, x, mean):
         full = peak + _AGC_HEADROOM_SIGMA * np.sqrt(det.excess * peak + det.circuit_var)
     else:
         full = np.full(x.shape[0], float(dig.full_scale_photoelectrons))
-    lsb = full / 2**dig.bits
+    lsb = np.maximum(full, 1.0) / 2**dig.bits  # at least one photoelectron full scale
     codes = np.round(x / lsb[:, None])
     saturated = np.any(codes > top, axis=1)
     return np.clip(codes, 0, top) * lsb[:, None], saturated, lsb**2 / 12.0
