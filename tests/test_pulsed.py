@@ -36,7 +36,8 @@ from chirplidar.receiver.photon import photon_detection_probability
 from chirplidar.tiers import TIERS, UnsupportedError
 from chirplidar.tiers.echoes import Echoes
 from chirplidar.tiers.model import Instrument, Returns
-from chirplidar.tiers.pulsed import expected_waveform, sample_times_s, signal_waveform
+from chirplidar.tiers.pulsed import (detection_window_samples, expected_waveform,
+                                     sample_times_s, signal_waveform)
 from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from conftest import CH5
 
@@ -212,6 +213,9 @@ def test_gaussian_fit_precision_near_its_cramer_rao_bound(detector):
     crb = float(arrival_time_crb_s(dmu, var))
     std = float(np.std(t_err, ddof=1))
     assert std == pytest.approx(crb, rel=0.20), (std, crb)
+    # The tier's own range bound (d_sigma, the survey's h_li_sigma) is that bound in metres; its
+    # window is centred on each shot, this one fixed 0.5 ns earlier (2 %: the bins' placement).
+    assert np.median(out["d_sigma"]) == pytest.approx(C * crb / 2, rel=0.02)
 
 
 def _apd_circuit_variance(inst):
@@ -243,8 +247,11 @@ def test_threshold_false_alarms_vs_closed_form(detector):
     # APD, dark: Gaussian circuit noise only (16 bits), 1 - (1 - Q(3))^64 (Q the normal tail).
     # Photon counting, 0.05 background photoelectrons per sample: the threshold K is the smallest
     # count with a Poisson tail P(N >= K) <= Q(3) (here K = 2), and 1 - (1 - P(N >= K))^64.
+    # The photon counter samples at 200 MHz: its detection window (the received pulse's FWHM,
+    # 5.2 ns) is then one sample, whose counts are independent.
     inst = glas(detector=detector, estimator="threshold", threshold_sigma=3.0, samples=64,
-                bits=16)
+                bits=16, fs=1e9 if detector == "apd" else 200e6)
+    assert detection_window_samples(inst) == 1
     n_shots, k = 20000, 3.0
     bg = 0.0 if detector == "apd" else 0.05
     out = TIERS["pulsed"].simulate(inst, returns(inst, 0.0, n_shots, background_per_sample=bg),
@@ -345,3 +352,24 @@ def test_same_seed_same_output(detector, dead_time_s):
         np.testing.assert_array_equal(a[key], b[key])
     assert a.flags == b.flags
     assert np.all(a["detected"]) and not np.array_equal(a["d_rx"], c["d_rx"])
+
+
+def test_photon_counting_detects_over_its_window_and_flags_an_unreachable_threshold():
+    # A 1 GHz photon counter: its counts are summed over the received pulse's FWHM (5 samples),
+    # so a 300-photoelectron return is detected although no single sample may hold the
+    # threshold's count. The closed form p_detect (disjoint windows, no dead time) is 1 there.
+    inst = glas(detector="photon_counting", dead_time_s=0.0)
+    assert detection_window_samples(inst) == 5
+    out = TIERS["pulsed"].simulate(inst, returns(inst, 300.0, 200, background_per_sample=0.2),
+                                   np.random.default_rng(3))
+    assert np.all(out["p_detect"] > 0.999999) and np.all(out["detected"])
+    # With a 2 ns dead time at most floor(5 ns / 2 ns) + 1 = 3 counts fit in the window, fewer
+    # than the threshold the window's background of 1 photoelectron needs at 4 sigma
+    # (P(N >= K) <= Q(4) = 3.2e-5 for a Poisson mean of 1: K = 8): every shot is flagged.
+    inst = glas(detector="photon_counting", dead_time_s=2e-9)
+    out = TIERS["pulsed"].simulate(inst, returns(inst, 300.0, 200, background_per_sample=0.2),
+                                   np.random.default_rng(3))
+    assert min(c for c in range(1, 50) if poisson.sf(c - 1, 1.0) <= norm.sf(4.0)) == 8
+    assert "threshold_unreachable" in out["flags"]
+    assert np.all(out.flag_masks["threshold_unreachable"]) and not np.any(out["detected"])
+

@@ -51,9 +51,12 @@ ROWS: tuple[tuple[str, str, str], ...] = (
 )
 #: Shots per received-power level of the sweep, by tier (the rf tier is the expensive one).
 SWEEP_SHOTS = {"link": 400, "pulsed": 400, "baseband": 32, "rf": 4}
-#: The sweep's received-power levels: this many, over this span (dB) around the run's median.
+#: The sweep's received-power levels: this many, over this span (dB) around the sensitivity,
+#: found first on a coarse grid of COARSE_STEP_DB over COARSE_SPAN_DB around the run's median.
 SWEEP_LEVELS = 25
-SWEEP_SPAN_DB = (-40.0, 20.0)
+SWEEP_SPAN_DB = (-20.0, 40.0)
+COARSE_STEP_DB = 5.0
+COARSE_SPAN_DB = (-160.0, 20.0)
 #: Robust standard deviation of a normal sample from its median absolute deviation.
 MAD_TO_SIGMA = 1.4826
 
@@ -154,9 +157,20 @@ def chirped_bandwidth_hz(config, max_beat_hz: float) -> float:
     return float(max_beat_hz)
 
 
-def power_sweep(config, range_m: float, centre_dbm: float, seed: int) -> PowerSweep:
+def power_sweep(config, range_m: float, median_dbm: float, seed: int) -> PowerSweep:
     """Detection probability and range precision against received signal power, through the
-    configuration's survey tier on a point target at ``range_m`` (module docstring)."""
+    configuration's survey tier on a point target at ``range_m`` (module docstring): a coarse
+    pass of few shots finds where half the shots are detected, the sweep spans
+    :data:`SWEEP_SPAN_DB` around it."""
+    coarse = median_dbm + np.arange(COARSE_SPAN_DB[0], COARSE_SPAN_DB[1] + 1e-9, COARSE_STEP_DB)
+    found = sensitivity_dbm(_sweep_levels(config, range_m, coarse, seed, shots=32))
+    centre = found if np.isfinite(found) else median_dbm
+    return _sweep_levels(config, range_m, centre + np.linspace(*SWEEP_SPAN_DB, SWEEP_LEVELS),
+                         seed)
+
+
+def _sweep_levels(config, range_m: float, levels, seed: int, shots: int | None = None):
+    """:class:`PowerSweep` at the received powers ``levels`` (dBm)."""
     from ..config.instrument import instrument_from_config
     from ..mission.measure import survey_returns
     from ..tiers.registry import TIERS
@@ -164,8 +178,7 @@ def power_sweep(config, range_m: float, centre_dbm: float, seed: int) -> PowerSw
 
     instrument = instrument_from_config(config)
     tier = config.survey.tier
-    shots = SWEEP_SHOTS[tier]
-    levels = centre_dbm + np.linspace(*SWEEP_SPAN_DB, SWEEP_LEVELS)
+    shots = SWEEP_SHOTS[tier] if shots is None else min(shots, SWEEP_SHOTS[tier])
     p_det, precision = np.empty(levels.size), np.empty(levels.size)
     threshold = config.survey.detection_threshold_db
     for k, dbm in enumerate(levels):
@@ -191,14 +204,13 @@ def power_sweep(config, range_m: float, centre_dbm: float, seed: int) -> PowerSw
 
 def sensitivity_dbm(sweep: PowerSweep, level: float = 0.5) -> float:
     """The lowest received power at which the detection probability reaches ``level``
-    (linear interpolation between sweep levels), NaN if it never does."""
+    (linear interpolation between sweep levels), NaN if it never does or already does at the
+    sweep's lowest level (the sweep did not bracket it)."""
     p = sweep.detection_probability
     above = np.flatnonzero(p >= level)
-    if above.size == 0:
+    if above.size == 0 or above[0] == 0:
         return float("nan")
     k = int(above[0])
-    if k == 0:
-        return float(sweep.received_dbm[0])
     x0, x1 = sweep.received_dbm[k - 1], sweep.received_dbm[k]
     return float(x0 + (level - p[k - 1]) * (x1 - x0) / (p[k] - p[k - 1]))
 
@@ -237,15 +249,15 @@ def compare_instruments(mission, instruments, *, out_dir, overrides=(), span_s=N
 
 
 def _sweep_for(config, path: Path, median_dbm: float) -> PowerSweep:
-    """The sweep around the run's median received power at its median range (1 km and
-    -80 dBm when the run saw no surface)."""
+    """The sweep of :func:`power_sweep` at the run's median range, its coarse pass around the
+    run's median received power (1 km and -80 dBm when the run saw no surface)."""
     from ..mission.results import read_netcdf
 
     ds = read_netcdf(path)
     surface = ds["detected"].values != 2
     r = _median(ds["range_true"].values[surface])
-    centre = median_dbm if np.isfinite(median_dbm) else -80.0
-    return power_sweep(config, r if np.isfinite(r) else 1e3, centre, int(config.seed))
+    median = median_dbm if np.isfinite(median_dbm) else -80.0
+    return power_sweep(config, r if np.isfinite(r) else 1e3, median, int(config.seed))
 
 
 def format_table(results: list[InstrumentResult]) -> str:

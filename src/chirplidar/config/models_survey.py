@@ -257,6 +257,11 @@ class SurveyRun(StrictModel):
                                          "flagged (omitted: system.reference_delay_s or its "
                                          "sys.fmaxopt rule)")
     subrays_per_beam: int = Field(ge=1, le=512, description="footprint samples per beam")
+    footprint_extent: float = Field(
+        1.0, ge=0.5, le=4.0, description="how far the footprint's sub-rays reach, in the beam's "
+        "1/e^2 half-angles: 1 samples the 1/e^2 cone (86 % of the power); a pulsed waveform's "
+        "width needs the Gaussian's tails: 2 with 32 or more sub-rays reads Gardner's (1992) "
+        "slope spreading within 1 % (tests/test_pulsed.py), 1 with 7 sub-rays 10-14 % narrow")
     chunk_shots: int = Field(20000, ge=1, le=MAX_CHUNK_SHOTS, description="shots per chunk "
                              "(memory bound and "
                              "resume granularity)")

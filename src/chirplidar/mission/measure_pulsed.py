@@ -113,7 +113,8 @@ def pulsed_batch_returns(config, geom, transmission, frac, background_w, idx) ->
 
 def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
     """Pulsed-tier measurements of every shot-beam of a chunk: the survey's fields (n, b) with
-    ``pulse_width`` (the received waveform's RMS width, s) for ``beat_width``'s place."""
+    ``pulse_width`` (the received waveform's RMS width, s) for ``beat_width``'s place and
+    ``range_sigma`` (the range's Cramer-Rao bound, m) for ``h_li_sigma``."""
     instrument = instrument_from_config(config)
     transmission, r_mean, _, frac, _ = footprint_transmission(config, scene, geom, seq)
     n, b = transmission.shape
@@ -122,7 +123,7 @@ def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
     dig = config.digitizer
     window_m = SPEED_OF_LIGHT_M_S * dig.record_samples / dig.sample_rate_hz \
         / (2.0 * config.channel.group_index)
-    cols = {name: np.full((n, b), np.nan) for name in ("snr_db", "range", "width")}
+    cols = {name: np.full((n, b), np.nan) for name in ("snr_db", "range", "width", "sigma")}
     seen = np.zeros((n, b), bool)
     flat = np.flatnonzero(ok.ravel())
     for batch_index, idx in enumerate(range_batches(r_mean, flat, window_m)):
@@ -133,6 +134,7 @@ def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
         cols["snr_db"][rows] = out["SNR"]
         cols["range"][rows] = out["d_rx"]
         cols["width"][rows] = out["pulse_width_s"]
+        cols["sigma"][rows] = out["d_sigma"]
         seen[rows] = np.asarray(out["detected"], bool)
         if progress is not None:
             progress(idx.size)
@@ -147,5 +149,6 @@ def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
         "beat_width": np.full((n, b), np.nan),
         "pulse_width": np.where(det, cols["width"], np.nan),
         "range_measured": np.where(det, cols["range"], np.nan),
+        "range_sigma": np.where(det, cols["sigma"], np.nan),
         "detected": detected,
     }

@@ -432,14 +432,16 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
     ch = config.channel
     w = np.where(hit, beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad,
                                     np.where(hit, rng_true, 1.0)), np.nan)
-    # Footprint: a cone of the beam's 1/e^2 half-angle at the median range of the chunk (the
-    # pattern's angular size; every shot's own footprint scales with its own range).
+    # Footprint: a cone of survey.footprint_extent times the beam's 1/e^2 half-angle at the
+    # median range of the chunk (the pattern's angular size; every shot's own footprint scales
+    # with its own range).
     if np.any(hit):
         r_med = float(np.median(rng_true[hit]))
         theta = float(beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, r_med)) / r_med
     else:
         theta = max(ch.divergence_half_angle_rad, 1e-9)
-    so, sd, sw = footprint_subrays(o, d, theta, n_sub, rng=None)
+    so, sd, sw = footprint_subrays(o, d, theta, n_sub, rng=None,
+                                   extent_factor=config.survey.footprint_extent)
     sub = cast_rays(scene.terrain, so, sd)
     k = sw.shape[1]
     t_sub = np.where(sub.hit, sub.ranges_m, np.inf).reshape(n, b, k)

@@ -53,6 +53,17 @@ def threshold_crossing(waveforms, threshold, t_s):
     return np.where(hit, t_cross, np.nan), j
 
 
+def window_sums(waveforms, n: int):
+    """(batch, m) sums over ``n`` consecutive samples centred on each sample (the samples
+    beyond the record count as zero): a photon counter's detection window, which gathers a
+    pulse's counts when its dead time leaves at most one count per sample."""
+    w = np.asarray(waveforms, float)
+    if n <= 1:
+        return w
+    c = np.cumsum(np.pad(w, ((0, 0), (n // 2 + 1, n - n // 2 - 1))), axis=1)
+    return c[:, n:] - c[:, :-n]
+
+
 def strongest_region(waveforms, threshold):
     """(start, stop) sample indices, each (batch,), of the run of samples at or above
     ``threshold`` that holds the waveform's largest sample ([start, stop)); -1, -1 where that

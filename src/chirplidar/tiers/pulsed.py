@@ -22,8 +22,12 @@ window of record_samples, its start ``returns.reference_delay_s`` or centred on 
    expected peak + 5 standard deviations (``agc``) or ``full_scale_photoelectrons``; a sample
    above full scale is clipped and flags ``saturation``; a photon counter's counts are exact;
 4. detection: the first sample reaching the threshold, the mean background + threshold_sigma x
-   the background's standard deviation per sample (APD); for a photon counter the smallest count
-   K whose Poisson tail under the background is at most the Gaussian tail Q(threshold_sigma);
+   the background's standard deviation per sample (APD); a photon counter sums its counts over a
+   window of the received pulse's FWHM (a dead time leaves at most a count or so per sample, so
+   a per-sample count K >= 2 would never be reached), its threshold the smallest count K whose
+   Poisson tail under the window's background is at most the Gaussian tail Q(threshold_sigma)
+   (a dead time lets at most floor(window / dead time) + 1 counts into the window: a threshold
+   above that flags ``threshold_unreachable``);
 5. the range estimator (``pulse_ranging.estimator``, :mod:`chirplidar.processing.pulse_estimators`).
 
 SNR (Gardner 1992, IEEE TGRS 30(5) 1061, eq. 20; Abshire et al. 2000 for the APD):
@@ -35,7 +39,7 @@ photon counter).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +52,8 @@ from ..processing.pulse_estimators import (
     poisson_min_count,
     strongest_region,
     threshold_crossing,
+    window_sums,
+    arrival_time_crb_s,
 )
 from ..receiver import shot_psd
 from ..receiver.detectors import apd_noise
@@ -221,13 +227,24 @@ def _digitize(instrument: Instrument, det: _Detector, x, mean):
     return np.clip(codes, 0, top) * lsb[:, None], saturated, lsb**2 / 12.0
 
 
+def detection_window_samples(instrument: Instrument) -> int:
+    """Samples a photon counter sums to detect: the received pulse's FWHM (1 for an APD)."""
+    if instrument.pulse_receiver.detector != "photon_counting":
+        return 1
+    p = instrument.pulse
+    fwhm = response_fwhm_s(p.shape, p.duration_s, sigma_h_s(instrument))
+    return max(1, int(round(fwhm * instrument.digitizer.sample_rate_hz)))
+
+
 def _threshold(instrument: Instrument, det: _Detector, mu_b, q_var):
-    """(threshold per shot (batch,), background variance per sample (batch,))."""
+    """(threshold per shot (batch,), background variance per sample (batch,)); a photon
+    counter's threshold is on its window sums (:func:`detection_window_samples`)."""
     k = instrument.pulse_ranging.threshold_sigma
     if det.analog:
         var_b = det.excess * mu_b + det.circuit_var + q_var
         return mu_b + k * np.sqrt(var_b), var_b
-    return poisson_min_count(mu_b, k).astype(float), mu_b
+    n_w = detection_window_samples(instrument)
+    return poisson_min_count(mu_b * n_w, k).astype(float), mu_b
 
 
 def _estimate(instrument: Instrument, det: _Detector, w, t, mu_b, thr, var_floor):
@@ -235,8 +252,9 @@ def _estimate(instrument: Instrument, det: _Detector, w, t, mu_b, thr, var_floor
     dt = t[1] - t[0]
     p, sh = instrument.pulse, sigma_h_s(instrument)
     fwhm = response_fwhm_s(p.shape, p.duration_s, sh)
-    t_cross, j0 = threshold_crossing(w, thr[:, None], t)
-    start, stop = strongest_region(w, thr[:, None])
+    seen = window_sums(w, detection_window_samples(instrument))
+    t_cross, j0 = threshold_crossing(seen, thr[:, None], t)
+    start, stop = strongest_region(seen, thr[:, None])
     tc, width, ok = centroid(w, mu_b[:, None], t, start, stop, int(np.ceil(fwhm / dt)))
     est = instrument.pulse_ranging.estimator
     if est == "threshold":  # the leading edge at the threshold, referred to the half maximum
@@ -259,9 +277,12 @@ def _closed_forms(instrument: Instrument, det: _Detector, mu_s, mu_b, thr, var_b
             gaussian_false_alarm_probability(instrument.pulse_ranging.threshold_sigma, n),
         )
         return p_d, p_fa
+    # the window sums of disjoint windows, taken as independent
+    n_w = detection_window_samples(instrument)
     k = thr.astype(np.int64)[:, None]
-    p_d = poisson_detection_probability(mean, k)
-    p_fa = poisson_detection_probability(np.broadcast_to(mu_b[:, None], mu_s.shape), k)
+    windows = window_sums(mean, n_w)[:, ::n_w]
+    p_d = poisson_detection_probability(windows, k)
+    p_fa = poisson_detection_probability(np.broadcast_to(n_w * mu_b[:, None], windows.shape), k)
     return p_d, p_fa
 
 
@@ -274,6 +295,37 @@ def _snr(det: _Detector, mu_s, mu_b, q_var):
     return np.where(
         noise > 0, n_s**2 / np.where(noise > 0, noise, 1.0), np.where(n_s > 0, np.inf, 0.0)
     )
+
+
+def range_bound_m(instrument: Instrument, returns: Returns, det: _Detector, mu_s, mu_b, q_var):
+    """(batch,) c / 2n x the Cramer-Rao bound of the return's arrival time
+    (:func:`~chirplidar.processing.pulse_estimators.arrival_time_crb_s`) for its expected
+    waveform: d mu / d t0 by a central difference of :func:`signal_waveform` in a fixed window,
+    the variance per sample F mu + circuit + quantisation (a photon counter: mu). What an
+    efficient estimator (the Gaussian fit at high SNR) reaches; NaN without signal."""
+    t = sample_times_s(instrument, returns)
+    dt = t[1] - t[0]
+    fixed = dict(reference_delay_s=float(t[0] - 0.5 * dt))
+    h = 1e-3 * dt
+    up = signal_waveform(instrument, replace(returns, delay_s=returns.delay_s + h, **fixed))
+    down = signal_waveform(instrument, replace(returns, delay_s=returns.delay_s - h, **fixed))
+    mean = mu_s + mu_b[:, None]
+    var = det.excess * mean + (det.circuit_var + q_var)[:, None] if det.analog else mean
+    live = var > 0
+    slope = np.where(live, (up - down) / (2.0 * h), 0.0)
+    with np.errstate(divide="ignore"):
+        sigma_t = arrival_time_crb_s(slope, np.where(live, var, 1.0))
+    return np.where(np.isfinite(sigma_t), SPEED_OF_LIGHT_M_S * sigma_t
+                    / (2.0 * returns.group_index), np.nan)
+
+
+def _unreachable(instrument: Instrument, det: _Detector, thr) -> np.ndarray:
+    """(batch,) shots whose threshold count a dead-time-limited photon counter cannot reach in
+    its detection window: at most floor(window / dead time) + 1 counts fit in it."""
+    if det.analog or det.dead_time_s <= 0:
+        return np.zeros(np.shape(thr), bool)
+    window_s = detection_window_samples(instrument) / instrument.digitizer.sample_rate_hz
+    return thr > np.floor(window_s / det.dead_time_s) + 1
 
 
 def simulate_pulsed(
@@ -289,7 +341,8 @@ def simulate_pulsed(
     ``Ptx`` (dBm, the transmitted peak), ``E_rx_j``, ``n_signal`` and ``n_background`` (mean
     photoelectrons in the window), ``detected``, ``p_detect`` and ``p_false_alarm`` (closed forms
     for the expected waveform, independent samples, no dead time), ``false_alarm_rate_hz``
-    (p_false_alarm x prf), ``pulse_width_s`` (the fit's sigma, else the second moment).
+    (p_false_alarm x prf), ``pulse_width_s`` (the fit's sigma, else the second moment),
+    ``d_sigma`` (m, the range's Cramer-Rao bound, :func:`range_bound_m`).
     ``keep_spectrum``: a pulsed tier draws no spectrum (ignored)."""
     check_pulsed(instrument)
     det = _detector(instrument)
@@ -320,7 +373,9 @@ def simulate_pulsed(
         "p_false_alarm": p_fa,
         "false_alarm_rate_hz": p_fa * instrument.pulse.prf_hz,
         "pulse_width_s": np.where(detected, width, np.nan),
+        "d_sigma": range_bound_m(instrument, returns, det, mu_s, mu_b, q_var),
     }
-    masks = {"saturation": saturated, "not_detected": ~detected}
+    masks = {"saturation": saturated, "not_detected": ~detected,
+             "threshold_unreachable": _unreachable(instrument, det, thr)}
     flags = [name for name, m in masks.items() if m.any()]
     return Measurements("pulsed", values, flags, flag_masks={name: masks[name] for name in flags})
