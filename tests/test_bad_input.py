@@ -41,13 +41,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: survey missions (checked by ``run --dry-run``) and the lab-bench ones (``shot``)
 SURVEYS = ("greenland_uav.toml", "icesat_like.toml")
-BENCHES = ("thesis_bench.toml", "thesis_ch5_bench.toml")
+BENCHES = ("thesis_bench.toml", "thesis_ch5_bench.toml", "glas_bench.toml")
 #: the files a mutation may change: the missions, the instrument files they extend, the scenes
 FILES = (*SURVEYS, *BENCHES, "thesis_field_instrument.toml", "icesat2_instrument.toml",
-         "../scenes/greenland_outlet.toml", "../scenes/antarctic_margin.toml")
+         "../instruments/glas.toml", "../scenes/greenland_outlet.toml",
+         "../scenes/antarctic_margin.toml")
 #: which command reads a file (a scene or an instrument through the missions that use it)
 USERS = {"thesis_field_instrument.toml": "greenland_uav.toml",
          "icesat2_instrument.toml": "icesat_like.toml",
+         "../instruments/glas.toml": "glas_bench.toml",
          "../scenes/greenland_outlet.toml": "greenland_uav.toml",
          "../scenes/antarctic_margin.toml": "icesat_like.toml"}
 #: keys where inf means something (no signal; a Kolmogorov screen; a uniform atmosphere)
@@ -69,6 +71,7 @@ def tree(tmp_path_factory) -> Path:
     base = tmp_path_factory.mktemp("bad_input")
     shutil.copytree(ROOT / "missions", base / "missions")
     shutil.copytree(ROOT / "scenes", base / "scenes")
+    shutil.copytree(ROOT / "instruments", base / "instruments")
     for scene in (base / "scenes").glob("*.toml"):
         doc = tomllib.loads(scene.read_text())
         if "resolution_m" in doc.get("terrain", {}):
@@ -133,7 +136,8 @@ def invoke(argv: list[str], capsys) -> tuple[int, str, str]:
 def command(mission: Path) -> list[str]:
     if mission.name in SURVEYS:
         return ["run", str(mission), "--dry-run", "--no-progress", "--json"]
-    return ["shot", str(mission), "--tier", "link", "--json"]
+    tier = "pulsed" if mission.name == "glas_bench.toml" else "link"
+    return ["shot", str(mission), "--tier", tier, "--json"]
 
 
 def check_refusal(code: int, err: str, argv) -> None:
@@ -160,6 +164,7 @@ def check_outputs(mission: Path, out: str, argv) -> None:
         assert not missing or report["flags"], f"{argv}: {missing} null without a flag"
         return
     from chirplidar.mission import pipeline
+    from chirplidar.mission.results import NOT_MEASURED_BY
     from chirplidar.mission.survey import chunk_geometry
 
     config, scene, plan = preflight.prepare(mission)
@@ -169,6 +174,8 @@ def check_outputs(mission: Path, out: str, argv) -> None:
     per_shot = pipeline.per_shot_variables(config, geom,
                                            pipeline.measure_chunk(config, scene, geom, seq))
     detected = per_shot["detected"] == 1
+    for name in NOT_MEASURED_BY[config.kind]:
+        assert np.all(np.isnan(per_shot.pop(name))), f"{argv}: {name} measured by {config.kind}"
     for name, values in per_shot.items():
         values = np.asarray(values, dtype=float)
         bad = detected & ~np.isfinite(values)

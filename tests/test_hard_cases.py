@@ -58,6 +58,7 @@ from chirplidar.cli import main
 from chirplidar.config import load_mission
 from chirplidar.mission.results import (
     DETECTED_FLAG_MEANINGS,
+    NOT_MEASURED_BY,
     SCHEMA_BY_NAME,
     read_netcdf,
 )
@@ -796,11 +797,16 @@ def survey_invariant(ds) -> list[str]:
     problems = []
     if not set(np.unique(det).tolist()) <= set(CODE_NAMES):
         problems.append(f"detected codes {sorted(set(np.unique(det).tolist()))} outside 0-5")
+    kind = "pulsed" if ds.attrs.get("tier") == "pulsed" else "chirped"
     for name in sorted(ds.variables):
         a = ds[name].values
         if a.dtype.kind != "f" or a.shape != det.shape:
             continue
         bad = ~np.isfinite(a)
+        if name in NOT_MEASURED_BY[kind]:   # fill values throughout: not this kind's measurement
+            if not np.all(bad):
+                problems.append(f"{name}: measured by a {kind} instrument")
+            continue
         spec = SCHEMA_BY_NAME.get(name)
         if np.any(np.isinf(a)):
             problems.append(f"{name}: {int(np.isinf(a).sum())} inf")

@@ -17,6 +17,7 @@ import pytest
 
 from chirplidar import cli
 from chirplidar.config import ConfigError, load_mission
+from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
 from conftest import GLAS_BENCH, ROOT
 
 INSTRUMENTS = ROOT / "instruments"
@@ -180,3 +181,42 @@ def test_a_pulsed_survey_measures_the_terrain(glas_run):
     assert np.all(width >= 0.9 * sigma_p)
     assert np.all(np.isfinite(ds["h_li_sigma"].values[det == 1]))
     assert np.all(np.isnan(ds["beat_frequency"].values))
+
+
+def test_compare_flies_both_instruments_and_shows_the_trade(tmp_path, capsys):
+    # The shipped example: the field-trial instrument against GLAS on the first 20 s of the
+    # Greenland UAV flight. The self-chirped lidar needs far less received power (thesis Ch. 2:
+    # pulse compression instead of peak power; its bench sensitivity is -96 dBm, Table 5.4),
+    # GLAS fires 15 MW pulses (Table 2.1) where the chirped transmitter's peak is milliwatts.
+    import json
+
+    code = cli.main(["compare", str(COMPARE),
+                     "--instrument", str(INSTRUMENTS / "ku_self_chirped.toml"),
+                     "--instrument", str(INSTRUMENTS / "glas.toml"), "--span-s", "20",
+                     "--out-dir", str(tmp_path), "--json", "--no-progress",
+                     "--plot", str(tmp_path / "compare.png")])
+    out = capsys.readouterr().out
+    assert code == 0
+    chirped, glas = json.loads(out)["instruments"]
+    assert (chirped["kind"], chirped["tier"], glas["kind"], glas["tier"]) == \
+        ("chirped", "link", "pulsed", "pulsed")
+    assert glas["peak_power_w"] == pytest.approx(15e6)
+    assert glas["shot_rate_hz"] == 40.0 and glas["pulse_energy_j"] == 0.075
+    # Table 5.4's -96 dBm within the 3 dB the validation tests hold the chirped tiers to
+    # (10 dB SNR is the detection threshold: half the shots are detected there).
+    assert abs(chirped["sensitivity_dbm"] - (-96.0)) <= 3.0
+    # No direct detector does better than the photon limit (Table 2.5, eq. 2.2.4): half the
+    # shots see a photoelectron at a mean of ln 2, i.e. ln 2 h nu / eta of received energy, a
+    # peak power of that over the Gaussian pulse's 1.0645 FWHM (sqrt(pi / (4 ln 2)) tau).
+    # GLAS's sensitivity lies above it; the self-chirped lidar's more than 20 dB below it.
+    cfg = _fly("glas.toml")
+    energy = math.log(2) * PLANCK_J_S * SPEED_OF_LIGHT_M_S / (1064e-9 * cfg.apd.quantum_efficiency)
+    limit_dbm = 10 * math.log10(energy / (math.sqrt(math.pi / (4 * math.log(2))) * 5e-9) / 1e-3)
+    assert glas["sensitivity_dbm"] >= limit_dbm
+    assert chirped["sensitivity_dbm"] < limit_dbm - 20.0
+    assert glas["peak_power_w"] > 1e6 * chirped["peak_power_w"]
+    for item in (chirped, glas):
+        assert 0.0 < item["detection_probability"] <= 1.0
+        assert item["range_precision_m"] > 0 and item["coverage"] > 0
+        assert Path(item["results"]).is_file()
+    assert (tmp_path / "compare.png").stat().st_size > 10_000

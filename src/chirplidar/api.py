@@ -17,7 +17,7 @@ import xarray as xr
 
 from .channel.lab import simulate_lab
 from .config import MissionConfig, config_with, resolve_key
-from .tiers.common import OUTPUT_LONG_NAMES, OUTPUT_NAMES, OUTPUT_UNITS
+from .tiers.common import OUTPUT_NAMES, OUTPUT_UNITS
 from .tiers.registry import get_tier
 
 __all__ = ["simulate_shot", "simulate_lab", "sweep", "simulate_mission_shot", "sweep_mission",
@@ -122,11 +122,15 @@ def _sweep_values(start: float, stop: float, n: int, scale: str) -> np.ndarray:
 def _sweep_dataset(rows: list, xs: np.ndarray, key: str, vary: str, repeat: int, tier: str,
                    seed: int, extra: dict | None = None, attrs: dict | None = None) -> xr.Dataset:
     """The sweep Dataset (dims x, repeat) of the tiers' raw outputs ``rows``, one per x."""
-    data = {name: (("x", "repeat"), np.stack([r[name] for r in rows]),
-                   {"units": OUTPUT_UNITS[name], "long_name": OUTPUT_LONG_NAMES[name]})
-            for name in OUTPUT_NAMES}
-    data["f_beat_hz"] = (("x", "repeat"), np.stack([r["f_beat_hz"] for r in rows]),
-                         {"units": "Hz", "long_name": "measured beat frequency"})
+    from .tiers.registry import tier_outputs
+
+    units, long_names = tier_outputs(tier)
+    data = {name: (("x", "repeat"), np.stack([np.asarray(r[name], float) for r in rows]),
+                   {"units": units[name], "long_name": long_names[name]})
+            for name in units}
+    if "f_beat_hz" in rows[0]:
+        data["f_beat_hz"] = (("x", "repeat"), np.stack([r["f_beat_hz"] for r in rows]),
+                             {"units": "Hz", "long_name": "measured beat frequency"})
     data["flags"] = (("x",), np.array([",".join(r["flags"]) for r in rows], dtype=object),
                      {"long_name": "comma-separated flags"})
     data.update(extra or {})

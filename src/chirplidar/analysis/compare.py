@@ -56,7 +56,7 @@ SWEEP_SHOTS = {"link": 400, "pulsed": 400, "baseband": 32, "rf": 4}
 SWEEP_LEVELS = 25
 SWEEP_SPAN_DB = (-20.0, 40.0)
 COARSE_STEP_DB = 5.0
-COARSE_SPAN_DB = (-160.0, 20.0)
+COARSE_SPAN_DB = (-160.0, 60.0)
 #: Robust standard deviation of a normal sample from its median absolute deviation.
 MAD_TO_SIGMA = 1.4826
 

@@ -12,11 +12,13 @@ from .common import (JSON_NOTE, SENSITIVITY_TIERS, UsageError, add_common, dump_
 
 
 def _shot_record(result: dict, names: Sequence[str]) -> dict:
-    """The JSON object of one shot: Table 4.10 names, flags, tier, f_beat_hz."""
+    """The JSON object of one shot: the tier's outputs (Table 4.10 names for the chirped
+    tiers), flags, tier and, from the chirped tiers, f_beat_hz."""
     rec = {n: json_number(result[n]) for n in names}
     rec["flags"] = [str(f) for f in result.get("flags", [])]
     rec["tier"] = str(result.get("tier", ""))
-    rec["f_beat_hz"] = json_number(result.get("f_beat_hz", math.nan))
+    if "f_beat_hz" in result:
+        rec["f_beat_hz"] = json_number(result["f_beat_hz"])
     return rec
 
 
@@ -29,8 +31,9 @@ def _sweep_flags(ds, n_x: int) -> list[list[str]] | None:
 
 
 def cmd_shot(args) -> int:
-    from ..api import OUTPUT_NAMES, OUTPUT_UNITS, simulate_mission_shot, simulate_shot
+    from ..api import simulate_mission_shot, simulate_shot
     from ..mission.shot import GEOMETRY_KEYS, is_survey
+    from ..tiers.registry import tier_outputs
 
     if args.plot:
         from ..tiers.registry import TIERS as TIER_REGISTRY
@@ -50,8 +53,9 @@ def cmd_shot(args) -> int:
         result = simulate_shot(cfg, seed=args.seed, tier=args.tier,
                                return_spectrum=bool(args.plot))
     mission_geometry = bool(result.get("mission_geometry"))
+    units = tier_outputs(args.tier)[0]
     if args.json:
-        rec = _shot_record(result, OUTPUT_NAMES)
+        rec = _shot_record(result, tuple(units))
         if mission_geometry:
             rec.update({k: json_number(result[k]) for k in GEOMETRY_KEYS})
             rec["mission_geometry"] = True
@@ -64,13 +68,15 @@ def cmd_shot(args) -> int:
             print(f"  survey shot t = {r['t_s']:.6g} s (shot {r['shot_index']}), beam {r['beam']}: "
                   f"range {r['range_m']:.2f} m to {r['surface']} at x {r['x_m']:.1f} m, "
                   f"y {r['y_m']:.1f} m, incidence {r['incidence_deg']:.1f} deg")
-        for name in OUTPUT_NAMES:
-            print(f"  {name:<9} {fmt_value(result[name]):>14}  {OUTPUT_UNITS.get(name, '')}")
-        f_beat = result.get("f_beat_hz", math.nan)
-        print(f"  {'f_beat':<9} {fmt_value(f_beat / 1e6 if math.isfinite(f_beat) else f_beat):>14}"
-              "  MHz")
+        w = max(9, *(len(name) for name in units))
+        for name, unit in units.items():
+            print(f"  {name:<{w}} {fmt_value(result[name]):>14}  {unit}")
+        if "f_beat_hz" in result:
+            f_beat = result["f_beat_hz"]
+            print(f"  {'f_beat':<{w}} "
+                  f"{fmt_value(f_beat / 1e6 if math.isfinite(f_beat) else f_beat):>14}  MHz")
         flags = result.get("flags", [])
-        print(f"  flags     {', '.join(flags) if flags else '(none)'}")
+        print(f"  {'flags':<{w}} {', '.join(flags) if flags else '(none)'}")
     if args.plot:
         spectrum = result.get("spectrum")
         if spectrum is None:   # the tiers that declare a spectrum always return one
@@ -87,8 +93,9 @@ def cmd_shot(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from ..api import OUTPUT_NAMES, OUTPUT_UNITS, sweep, sweep_mission
+    from ..api import sweep, sweep_mission
     from ..mission.shot import GEOMETRY_KEYS, GEOMETRY_UNITS, is_survey
+    from ..tiers.registry import tier_outputs
 
     if args.n < 1:
         raise UsageError(f"--n must be >= 1, got {args.n}")
@@ -103,7 +110,11 @@ def cmd_sweep(args) -> int:
     survey = is_survey(cfg)
     # A survey sweep can also plot the evaluated shot's geometry (range_m, incidence_deg, ...).
     geometry_names = [k for k in GEOMETRY_KEYS if k in GEOMETRY_UNITS] if survey else []
-    plottable = (*OUTPUT_NAMES, "f_beat_hz", *geometry_names)
+    output_units = tier_outputs(args.tier)[0]
+    from ..tiers.registry import TIERS as TIER_REGISTRY
+
+    beat = ("f_beat_hz",) if "chirped" in TIER_REGISTRY[args.tier].supports.kinds else ()
+    plottable = (*output_units, *beat, *geometry_names)
     x_name = resolve_output_name(args.x, plottable, allow_x=args.vary)
     y_name = resolve_output_name(args.y, plottable, allow_x=args.vary)
     # Check the varied key and both end values before any shot runs (no progress bar for a typo).
@@ -128,7 +139,7 @@ def cmd_sweep(args) -> int:
                    progress=not args.no_progress)
     xs = [float(v) for v in ds["x"].values]
     n_rep = int(ds.sizes.get("repeat", 1))
-    names = list(OUTPUT_NAMES) + (["f_beat_hz"] if "f_beat_hz" in ds.data_vars else [])
+    names = list(output_units) + (["f_beat_hz"] if "f_beat_hz" in ds.data_vars else [])
     table = {n: ds[n].transpose("x", ...).values.reshape(len(xs), n_rep) for n in names}
     # Per point, as Python numbers (ints stay JSON integers: beam, shot_index) and strings.
     geometry = {k: ds[k].values.tolist() for k in GEOMETRY_KEYS if survey and k in ds.data_vars}
@@ -161,7 +172,7 @@ def cmd_sweep(args) -> int:
             print(f"  at the mission's geometry: beam {beam}, {when} (t = "
                   + ", ".join(f"{t:.6g}" for t in sorted(set(geometry['t_s'])))
                   + f" s), surface {', '.join(surfaces)}")
-        units = dict(OUTPUT_UNITS, f_beat_hz="Hz", **GEOMETRY_UNITS)
+        units = dict(output_units, f_beat_hz="Hz", **GEOMETRY_UNITS)
         print(f"  {args.vary:>14} {'repeat':>6} "
               + " ".join(f"{c + ' (' + units.get(c, '') + ')':>15}" for c in cols)
               + ("  flags" if flags is not None else ""))

@@ -273,7 +273,7 @@ def cmd_study(args) -> int:
         return True
 
     try:
-        ds = run_study(args.mission, args.vary, overrides=args.set or [], span_s=args.span_s,
+        ds = run_study(args.mission, args.vary, overrides=overrides_of(args), span_s=args.span_s,
                        cell_m=args.cell_m, tier=args.tier, seed=args.seed,
                        workers=args.workers, scheduler=args.scheduler,
                        progress=not args.no_progress, out=args.out, overwrite=args.overwrite,
@@ -411,6 +411,7 @@ def add_study_parser(sub) -> None:
                         "KEY=V1,V2,... (TOML literals, bare words as strings); at most twice")
     p.add_argument("--set", metavar="KEY=VALUE", action="extend", nargs="+", default=[],
                    help="override a mission key at every point; repeatable")
+    add_instrument_option(p)
     p.add_argument("--span-s", type=float, default=None, metavar="S",
                    help="run survey.start_s .. start_s + S of each point (default: the whole "
                         "mission)")

@@ -188,7 +188,8 @@ def read_mission_flat(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[st
     instrument = tree.pop("instrument", None)
     for name, value in (("extends", parent), ("instrument", instrument)):
         if value is not None and not (isinstance(value, str) and value.strip()):
-            raise ConfigError(f"{path}: '{name}' must name a file (a path in quotes), "
+            what = "a mission" if name == "extends" else "an instrument"
+            raise ConfigError(f"{path}: '{name}' must name {what} file (a path in quotes), "
                               f"got {value!r}")
     flat = _canonical(_flatten(tree), str(path))
     if instrument is not None:

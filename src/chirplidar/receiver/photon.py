@@ -55,6 +55,30 @@ def photon_detection_probability(mean_photoelectrons, min_count: int = 1):
     return gammainc(k, mu)[()]
 
 
+#: Above this mean a photoelectron count is drawn from its normal limit: numpy's Poisson
+#: sampler refuses means beyond ~1e19 (a strong pulsed return from a low platform reaches
+#: them), and at 1e8 the Poisson's skewness 1 / sqrt(mean) is 1e-4.
+POISSON_NORMAL_ABOVE = 1e8
+#: A dead-time detector registers at most one count per dead time; arrivals beyond this many
+#: per dead time in a bin are dropped before the dead time is applied (the detector then fires
+#: within ~1/65 of a dead time of going live, as it would with them).
+DEAD_TIME_ARRIVAL_CAP = 64
+
+
+def poisson_counts(rng: np.random.Generator, mean) -> np.ndarray:
+    """Poisson counts of ``mean`` (array, >= 0), from the normal limit N(mean, mean) rounded
+    and floored at 0 above :data:`POISSON_NORMAL_ABOVE` (then as whole floats: a count may
+    exceed int64)."""
+    mu = np.asarray(mean, float)
+    big = mu > POISSON_NORMAL_ABOVE
+    if not np.any(big):
+        return rng.poisson(mu)
+    out = rng.poisson(np.where(big, 0.0, mu)).astype(float)
+    draw = np.rint(mu[big] + np.sqrt(mu[big]) * rng.standard_normal(int(big.sum())))
+    out[big] = np.maximum(draw, 0.0)
+    return out
+
+
 def apd_multiplied_electrons(rng: np.random.Generator, primary, excess_noise_factor: float):
     """The APD's output charge of ``primary`` (integer array, >= 0) primary photoelectrons,
     referred to the primary electrons (divided by the mean gain M).
@@ -85,9 +109,10 @@ def dead_time_counts(rng: np.random.Generator, counts, dt_s: float, dead_time_s:
     makes it dead for ``dead_time_s`` (Knoll 2010, "Radiation Detection and Measurement",
     Sec. 4.VII: a rate r reads r / (1 + r tau_d)). Vectorised over shots; the loop runs over
     the arrival rank (the largest count of a shot). ``dead_time_s`` = 0 returns ``counts``.
+    A bin's arrivals are capped at :data:`DEAD_TIME_ARRIVAL_CAP` per dead time.
     """
     c = np.asarray(counts)
-    if c.ndim != 2 or np.any(c < 0):
+    if c.ndim != 2 or np.any(c < 0) or not np.all(np.isfinite(c)):
         raise ValueError("counts must be a (batch, n_bins) array of counts >= 0")
     positive("dt_s", dt_s)
     if dead_time_s < 0:
@@ -95,7 +120,8 @@ def dead_time_counts(rng: np.random.Generator, counts, dt_s: float, dead_time_s:
     if dead_time_s == 0.0 or c.sum() == 0:
         return c.copy()
     batch, n_bins = c.shape
-    c = c.astype(np.int64)
+    cap = DEAD_TIME_ARRIVAL_CAP * (int(np.ceil(dt_s / dead_time_s)) + 1)
+    c = np.minimum(c, cap).astype(np.int64)
     per_shot = c.sum(axis=1)
     rows = np.repeat(np.arange(batch), per_shot)
     bins = np.repeat(np.tile(np.arange(n_bins), batch), c.ravel())

@@ -193,8 +193,12 @@ class Returns:
                 raise ValueError(
                     f"returns.reference_delay_s must be finite (got {reference_delay_s})"
                 )
-        per_shot = {"power_factor": power_factor, "phase_rad": phase_rad, "doppler_hz": doppler_hz,
-                    "background_power_w": background_power_w}
+        per_shot = {
+            "power_factor": power_factor,
+            "phase_rad": phase_rad,
+            "doppler_hz": doppler_hz,
+            "background_power_w": background_power_w,
+        }
         values: dict[str, Any] = {"batch": batch}
         for name, value in per_shot.items():
             values[name] = _per_shot(name, value, batch)
@@ -310,11 +314,15 @@ class Supports:
     def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
         """Raise :class:`UnsupportedError` naming the setting this tier does not model."""
         if instrument.kind not in self.kinds:
-            given = ("a pulsed instrument ([pulse] section)" if instrument.kind == "pulsed"
-                     else "a chirped instrument ([waveform], [system], [laser] sections)")
+            given = (
+                "a pulsed instrument ([pulse] section)"
+                if instrument.kind == "pulsed"
+                else "a chirped instrument ([waveform], [system], [laser] sections)"
+            )
             raise UnsupportedError(
                 f"the {tier} tier does not model {given}"
-                + (f"; {self.hint['kind']}" if "kind" in self.hint else ""))
+                + (f"; {self.hint['kind']}" if "kind" in self.hint else "")
+            )
         if instrument.kind == "pulsed":
             self._check_pulsed(tier, instrument)
             return
@@ -369,7 +377,8 @@ class Supports:
         if kind not in self.receivers:
             raise UnsupportedError(
                 f"the {tier} tier does not model pulse_receiver.detector = {kind!r}: it models "
-                + ", ".join(sorted(self.receivers)))
+                + ", ".join(sorted(self.receivers))
+            )
 
 
 class Tier(Protocol):

@@ -57,7 +57,7 @@ from ..processing.pulse_estimators import (
 )
 from ..receiver import shot_psd
 from ..receiver.detectors import apd_noise
-from ..receiver.photon import apd_multiplied_electrons, dead_time_counts
+from ..receiver.photon import apd_multiplied_electrons, dead_time_counts, poisson_counts
 from ..units import ELEMENTARY_CHARGE_C, PLANCK_J_S, SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from ..waveform.pulse import (
     bin_energy_fractions,
@@ -67,6 +67,40 @@ from ..waveform.pulse import (
 )
 from .model import Instrument, Measurements, Returns
 
+#: What the pulsed tier reports for each shot (the chirped tiers' are thesis Table 4.10's,
+#: ``tiers.common.OUTPUT_UNITS``): units and long names.
+OUTPUT_UNITS: dict[str, str] = {
+    "Ptx": "dBm",
+    "Psig": "dBm",
+    "E_rx_j": "J",
+    "n_signal": "1",
+    "n_background": "1",
+    "SNR": "dB",
+    "detected": "1",
+    "p_detect": "1",
+    "p_false_alarm": "1",
+    "false_alarm_rate_hz": "Hz",
+    "d_rx": "m",
+    "d_error": "m",
+    "d_sigma": "m",
+    "pulse_width_s": "s",
+}
+OUTPUT_LONG_NAMES: dict[str, str] = {
+    "Ptx": "transmitted peak optical power",
+    "Psig": "received peak optical power of the unspread pulse",
+    "E_rx_j": "received pulse energy",
+    "n_signal": "mean signal photoelectrons",
+    "n_background": "mean background and dark electrons in the range window",
+    "SNR": "signal-to-noise ratio over the received pulse (Gardner 1992)",
+    "detected": "the waveform reached the detection threshold",
+    "p_detect": "detection probability of the expected waveform (closed form)",
+    "p_false_alarm": "false-alarm probability per shot (closed form)",
+    "false_alarm_rate_hz": "false alarms per second at the pulse rate",
+    "d_rx": "measured range",
+    "d_error": "range error dst - d_rx",
+    "d_sigma": "Cramer-Rao bound of the range",
+    "pulse_width_s": "RMS width of the received waveform",
+}
 _AGC_HEADROOM_SIGMA = 5.0  # an ideal AGC: full scale = expected peak + 5 std
 _BLOCK = 1 << 22  # shots x echoes x samples per block of the expected waveform
 _COUNT_FLOOR = 1.0 / 12.0  # variance of rounding to whole counts: a photon counter's fit floor
@@ -200,7 +234,7 @@ def expected_waveform(instrument: Instrument, returns: Returns) -> np.ndarray:
 
 def _draw(instrument: Instrument, det: _Detector, mean: np.ndarray, rng: np.random.Generator):
     """One noisy waveform per shot, primary electrons per sample (before the digitizer)."""
-    counts = rng.poisson(mean)
+    counts = poisson_counts(rng, mean)
     if not det.analog:
         dt = 1.0 / instrument.digitizer.sample_rate_hz
         return dead_time_counts(rng, counts, dt, det.dead_time_s).astype(float)
@@ -305,18 +339,24 @@ def range_bound_m(instrument: Instrument, returns: Returns, det: _Detector, mu_s
     efficient estimator (the Gaussian fit at high SNR) reaches; NaN without signal."""
     t = sample_times_s(instrument, returns)
     dt = t[1] - t[0]
-    fixed = dict(reference_delay_s=float(t[0] - 0.5 * dt))
+    start = float(t[0] - 0.5 * dt)  # the window held fixed while the delay moves
     h = 1e-3 * dt
-    up = signal_waveform(instrument, replace(returns, delay_s=returns.delay_s + h, **fixed))
-    down = signal_waveform(instrument, replace(returns, delay_s=returns.delay_s - h, **fixed))
+
+    def shifted(delay_s: float) -> np.ndarray:
+        return signal_waveform(
+            instrument, replace(returns, delay_s=delay_s, reference_delay_s=start)
+        )
+
+    up, down = shifted(returns.delay_s + h), shifted(returns.delay_s - h)
     mean = mu_s + mu_b[:, None]
     var = det.excess * mean + (det.circuit_var + q_var)[:, None] if det.analog else mean
     live = var > 0
     slope = np.where(live, (up - down) / (2.0 * h), 0.0)
     with np.errstate(divide="ignore"):
         sigma_t = arrival_time_crb_s(slope, np.where(live, var, 1.0))
-    return np.where(np.isfinite(sigma_t), SPEED_OF_LIGHT_M_S * sigma_t
-                    / (2.0 * returns.group_index), np.nan)
+    return np.where(
+        np.isfinite(sigma_t), SPEED_OF_LIGHT_M_S * sigma_t / (2.0 * returns.group_index), np.nan
+    )
 
 
 def _unreachable(instrument: Instrument, det: _Detector, thr) -> np.ndarray:
@@ -375,7 +415,10 @@ def simulate_pulsed(
         "pulse_width_s": np.where(detected, width, np.nan),
         "d_sigma": range_bound_m(instrument, returns, det, mu_s, mu_b, q_var),
     }
-    masks = {"saturation": saturated, "not_detected": ~detected,
-             "threshold_unreachable": _unreachable(instrument, det, thr)}
+    masks = {
+        "saturation": saturated,
+        "not_detected": ~detected,
+        "threshold_unreachable": _unreachable(instrument, det, thr),
+    }
     flags = [name for name, m in masks.items() if m.any()]
     return Measurements("pulsed", values, flags, flag_masks={name: masks[name] for name in flags})

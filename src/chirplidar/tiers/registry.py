@@ -25,7 +25,7 @@ RF_SUPPORTS = Supports(
     recovery_receivers={"squaring": frozenset({"homodyne"})},
     hint={
         "kind": _CHIRPED_TIER,
-        "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)"
+        "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)",
     },
 )
 BASEBAND_SUPPORTS = Supports(
@@ -126,6 +126,14 @@ TIERS: dict[str, RegisteredTier] = {
     ),
 }
 TIER_NAMES: tuple[str, ...] = tuple(TIERS)
+
+
+def tier_outputs(name: str) -> tuple[dict[str, str], dict[str, str]]:
+    """(units, long names) of what tier ``name`` reports per shot, in its order: the chirped
+    tiers thesis Table 4.10's, the pulsed tier its own."""
+    module = "pulsed" if "pulsed" in get_tier(name).supports.kinds else "common"
+    mod = importlib.import_module(f"chirplidar.tiers.{module}")
+    return mod.OUTPUT_UNITS, mod.OUTPUT_LONG_NAMES
 
 
 def tiers_flying(kind: str) -> tuple[str, ...]:

@@ -47,7 +47,7 @@ def mzm_peak_power_transmission(train, bias_v: float, v_pi_v: float) -> float:
     alpha, beta = mzm_drive_angles(train, bias_v, v_pi_v)
     swing = abs(beta) * float(np.max(np.abs(train.envelope_samples())))
     lo, hi = alpha - swing, alpha + swing
-    if np.floor(hi / np.pi) >= np.ceil(lo / np.pi):   # a multiple of pi inside [lo, hi]
+    if np.floor(hi / np.pi) >= np.ceil(lo / np.pi):  # a multiple of pi inside [lo, hi]
         return 1.0
     return float(max(np.cos(lo) ** 2, np.cos(hi) ** 2))
 

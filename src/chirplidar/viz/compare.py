@@ -30,7 +30,7 @@ def plot_comparison(results, path) -> Path:
         if np.isfinite(sens):
             for ax in (top, bottom):
                 ax.axvline(sens, color=colour, ls=":", lw=1)
-            bottom.annotate(f"{sens:.1f} dBm", (sens, 0.5), xytext=(4, -12),
+            bottom.annotate(f"{sens:.1f} dBm", (sens, 0.5), xytext=(4, -12 - 11 * k),
                             textcoords="offset points", color=colour, fontsize=8)
     top.set_ylabel("range precision (m, robust std)")
     top.grid(True, which="both", alpha=0.3)

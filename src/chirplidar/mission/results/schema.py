@@ -154,6 +154,11 @@ SCHEMA: tuple[VarSpec, ...] = (
     VarSpec("surface_type", "int16", "1", "surface material at the footprint"),
 )
 SCHEMA_BY_NAME: dict[str, VarSpec] = {s.name: s for s in SCHEMA}
+#: Variables an instrument kind does not measure: all fill values (NaN) in its files.
+NOT_MEASURED_BY: dict[str, tuple[str, ...]] = {
+    "chirped": ("pulse_width",),
+    "pulsed": ("beat_frequency", "beat_width"),
+}
 #: Bytes of one shot of one beam held in memory (every variable as float64): the bound of a
 #: chunk's memory and of a results file before compression.
 BYTES_PER_BEAM_SHOT = 8 * len(SCHEMA)
