@@ -35,10 +35,10 @@ pulsed study (:mod:`chirplidar.analysis.accuracy_pulsed`): the GLAS bench
 
 Measured per setting: range RMS error (RMS of d_error over the shots, with its standard error and
 the difference from the reference's RMS), bias, fraction of outliers (|d_error| beyond 5 chirp
-range-resolution cells; pulsed: 5 x c tau / 2), mean and standard deviation of SNR and their differences from the
-reference's, and seconds per shot: the median over the setting's chunks of the chunk's wall time
-over its shots, after one untimed warm-up shot that fills the caches a long run would have filled
-(the median keeps a shared machine's load spikes out of the price).
+range-resolution cells; pulsed: 5 x c tau / 2), mean and standard deviation of SNR and their
+differences from the reference's, and seconds per shot: the median over the setting's chunks of
+the chunk's wall time over its shots, after one untimed warm-up shot that fills the caches a long
+run would have filled (the median keeps a shared machine's load spikes out of the price).
 
 Shots run in chunks of ``batch`` shots (rf) with child seeds SeedSequence(seed, spawn_key=(point,
 chunk)); the baseband and link tiers take all shots in one call except in the turbulence study,
