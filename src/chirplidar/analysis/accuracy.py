@@ -27,17 +27,23 @@ turbulence study (at the highest SNR point), reference = rf with ``screen_refere
                        tier at every size (the screen is its whole cost), the rf tier at the
                        default size. Every tier runs the rf chunks here, so that rf and link at
                        one size see the same screens.
+pulsed study (:mod:`chirplidar.analysis.accuracy_pulsed`): the GLAS bench
+(``missions/glas_bench.toml``, its own mission) through the pulsed tier at ``pulsed_snr_db``
+(placed with the tier's own SNR), reference = the pulsed tier at 4 GHz with ``gaussian_fit``:
+    ``pulse_sample_rate``  ``digitizer.sample_rate_hz`` (Gaussian fit, same record duration)
+    ``pulse_estimator``    ``pulse_ranging.estimator`` at the mission's sample rate
 
 Measured per setting: range RMS error (RMS of d_error over the shots, with its standard error and
 the difference from the reference's RMS), bias, fraction of outliers (|d_error| beyond 5 chirp
-range-resolution cells), mean and standard deviation of SNR and their differences from the
-reference's, and seconds per shot: the median over the setting's chunks of the chunk's wall time
-over its shots, after one untimed warm-up shot that fills the caches a long run would have filled
-(the median keeps a shared machine's load spikes out of the price).
+range-resolution cells; pulsed: 5 x c tau / 2), mean and standard deviation of SNR and their
+differences from the reference's, and seconds per shot: the median over the setting's chunks of
+the chunk's wall time over its shots, after one untimed warm-up shot that fills the caches a long
+run would have filled (the median keeps a shared machine's load spikes out of the price).
 
 Shots run in chunks of ``batch`` shots (rf) with child seeds SeedSequence(seed, spawn_key=(point,
 chunk)); the baseband and link tiers take all shots in one call except in the turbulence study,
 where every tier uses the rf chunks so that all see the same screens (one screen per chunk).
+The pulsed study runs chunks of ``pulsed_batch`` shots with spawn keys (1000 + point, chunk).
 """
 
 from __future__ import annotations
@@ -51,13 +57,15 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .accuracy_pulsed import PULSE_ESTIMATORS, PULSED_FAMILIES, PULSED_SNR_DB
+
 MISSION_NAME = "thesis_ch5_bench.toml"
 DEFAULT_SNR_DB = (10.0, 20.0, 30.0)
 FAMILIES = ("sample_rate", "delay_method", "peak_method", "zero_pad", "baseband_rate", "precision",
-            "link", "sub_rays", "screen")
+            "link", "sub_rays", "screen", *PULSED_FAMILIES)
 STUDIES = {"point target": ("sample_rate", "delay_method", "peak_method", "zero_pad",
                             "baseband_rate", "precision", "link"),
-           "footprint": ("sub_rays",), "turbulence": ("screen",)}
+           "footprint": ("sub_rays",), "turbulence": ("screen",), "pulsed": PULSED_FAMILIES}
 PEAK_METHODS = ("bin", "parabolic", "dtft")
 HEX_COUNTS = tuple(3 * m * (m + 1) + 1 for m in range(16))   # 1, 7, 19, 37, 61, 91, 127, ...
 OUTLIER_CELLS = 5.0     # |d_error| beyond this many chirp range-resolution cells is an outlier
@@ -327,20 +335,31 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
                    slope_deg: float = 10.0, footprint_shots: int | None = None,
                    screen_pixels: Sequence[int] = (16, 24, 32, 64), screen_reference: int = 128,
                    turbulence_shots: int | None = None,
+                   pulsed_mission: str | Path | None = None,
+                   pulsed_snr_db: Sequence[float] = PULSED_SNR_DB,
+                   pulse_sample_rates_hz: Sequence[float] = (0.25e9, 0.5e9, 1e9, 2e9),
+                   pulse_reference_rate_hz: float = 4e9,
+                   pulse_estimators: Sequence[str] = PULSE_ESTIMATORS,
+                   pulsed_shots: int | None = None, pulsed_batch: int = 100,
                    progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Run the accuracy-versus-time study; one dict per setting with the keys of ``COLUMNS``.
 
     ``shots`` per setting of the point-target study; the footprint study runs ``footprint_shots``
     (default 0.6 x shots: its rf reference sums 127 echoes per shot) and the turbulence study
     ``turbulence_shots`` (default 3 x shots: its SNR fades by ~6 dB rms and successive shots are
-    correlated).
+    correlated). The pulsed study runs ``pulsed_shots`` (default 10 x shots: a pulsed shot costs
+    a fraction of a millisecond) in chunks of ``pulsed_batch``.
 
     ``mission`` defaults to missions/thesis_ch5_bench.toml (homodyne); ``overrides`` are
-    ``--set``-style strings applied to it. ``families`` restricts the knob families (default: all
-    of ``FAMILIES``); the reference rows always run. ``progress`` receives one line per setting.
-    Raises ValueError for bad arguments (before anything runs).
+    ``--set``-style strings applied to it. ``pulsed_mission`` (default missions/glas_bench.toml)
+    is the pulsed study's, loaded as it is. ``families`` restricts the knob families (default: all
+    of ``FAMILIES``); the reference rows of the selected studies always run (the point-target
+    reference with any chirped family, the pulsed reference with any pulsed family).
+    ``progress`` receives one line per setting. Raises ValueError for bad arguments (before
+    anything runs).
     """
     from ..config import config_with, load_mission
+    from . import accuracy_pulsed as ap
 
     base = load_mission(mission if mission is not None else default_mission_path(),
                         list(overrides))
@@ -348,7 +367,18 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
         base, snr_db, shots, batch, families, sample_rates_hz, upsample_factors, peak_methods,
         zero_pad_factors, baseband_rates_hz, sub_rays, sub_rays_reference, slope_deg,
         screen_pixels, screen_reference)
-    if base.system.receiver != "coherent" or base.system.coherent_mode != "homodyne":
+    chirped = any(f not in PULSED_FAMILIES for f in fams)
+    if any(f in PULSED_FAMILIES for f in fams):
+        pulsed = load_mission(pulsed_mission if pulsed_mission is not None
+                              else ap.default_pulsed_mission_path())
+        p_snr, p_rates, p_ref, p_est = ap.check_pulsed_args(
+            pulsed, pulsed_snr_db, pulse_sample_rates_hz, pulse_reference_rate_hz,
+            pulse_estimators)
+        n_pulse = 10 * shots if pulsed_shots is None else pulsed_shots
+        for name, value, low in (("pulsed_shots", n_pulse, 2), ("pulsed_batch", pulsed_batch, 1)):
+            if isinstance(value, bool) or int(value) != value or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}; got {value!r}")
+    if chirped and (base.system.receiver != "coherent" or base.system.coherent_mode != "homodyne"):
         raise ValueError("the accuracy study runs the self-chirped homodyne receiver (system."
                          "receiver = 'coherent', coherent_mode = 'homodyne'); the mission has "
                          f"{base.system.receiver!r} / {base.system.coherent_mode!r}")
@@ -364,15 +394,16 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
     rows: list[dict[str, Any]] = []
 
     def record(setting, cfg, snr_target, pattn, point, chunk_all, ref_row, echo=None,
-               n_shots=shots):
-        chunk = batch if (setting.tier == "rf" or chunk_all) else n_shots
+               n_shots=shots, chunk=None, outlier_m=OUTLIER_CELLS * cell_m):
+        if chunk is None:
+            chunk = batch if (setting.tier == "rf" or chunk_all) else n_shots
         outs, per_shot = _run(setting, cfg, seed, point, n_shots, chunk,
                               *(echo or (None, None, None)))
         row = {"snr_target_db": snr_target, "pattn_db": pattn, "study": setting.study,
                "family": setting.family, "tier": setting.tier, "setting": setting.setting,
                "knob": setting.knob, "value": setting.value, "reference": setting.reference,
                "shots": n_shots, "batch": min(chunk, n_shots),
-               **_stats(outs, OUTLIER_CELLS * cell_m),
+               **_stats(outs, outlier_m),
                "s_per_shot": per_shot}
         ref = row if ref_row is None else ref_row
         row["range_rms_diff_m"] = row["range_rms_m"] - ref["range_rms_m"]
@@ -386,7 +417,7 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
         return rows[-1]
 
     point_fams = [f for f in fams if f in STUDIES["point target"]]
-    for point, target in enumerate(snr):
+    for point, target in enumerate(snr if chirped else ()):
         pattn = pattn_for_snr(base, target)
         cfg0 = config_with(base, {"channel.extra_attenuation_db": pattn})
         settings = _point_settings(base, point_fams, sample_rates_hz, upsample_factors,
@@ -442,6 +473,18 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
             row = record(s, config_with(turb, s.overrides), top, pattn, top_point, True, ref_row,
                          n_shots=n_turb)
             ref_row = row if s.reference else ref_row
+
+    if any(f in PULSED_FAMILIES for f in fams):
+        runs = ap.pulsed_settings(pulsed, fams, p_rates, p_ref, p_est)
+        for point, target in enumerate(p_snr):
+            pattn = ap.attenuation_for_pulsed_snr(pulsed, target)
+            cfg0 = config_with(pulsed, {"channel.extra_attenuation_db": pattn})
+            ref_row = None
+            for s in runs:
+                row = record(s, config_with(cfg0, s.overrides), target, pattn, 1000 + point,
+                             False, ref_row, n_shots=int(n_pulse), chunk=int(pulsed_batch),
+                             outlier_m=ap.outlier_threshold_m(pulsed))
+                ref_row = row if s.reference else ref_row
     return rows
 
 
@@ -524,8 +567,14 @@ def run_accuracy_bench(out_dir: str | Path = "outputs", mission: str | Path | No
     shots = {}
     for r in rows:
         shots.setdefault(r["study"], r["shots"])
+    pulsed = ""
+    if any(r["study"] == "pulsed" for r in rows):
+        from .accuracy_pulsed import default_pulsed_mission_path
+
+        name = Path(str(study_kwargs.get("pulsed_mission") or default_pulsed_mission_path())).name
+        pulsed = f" (pulsed study: {name})"
     header = (f"# Accuracy versus time\n\nMission {Path(str(mission or default_mission_path())).name}"
-              f"{' with ' + ' '.join(overrides) if overrides else ''}; shots per setting: "
+              f"{' with ' + ' '.join(overrides) if overrides else ''}{pulsed}; shots per setting: "
               + ", ".join(f"{k} {v}" for k, v in shots.items())
               + f"; measured on {os.cpu_count()}-core {platform.machine()} "
               f"({time.strftime('%Y-%m-%d')}), study wall time {elapsed:.0f} s. Seconds per shot: "

@@ -175,11 +175,13 @@ def add_bench_parser(sub) -> None:
                    help="timed runs; the median is reported (scale: pairs of runs)")
     p.add_argument("--out", default="outputs", metavar="DIR",
                    help="--what accuracy (the accuracy-versus-time study of every fidelity "
-                        "knob, on missions/thesis_ch5_bench.toml unless --mission): folder for "
+                        "knob, on missions/thesis_ch5_bench.toml unless --mission, and of the "
+                        "pulsed tier's on missions/glas_bench.toml): folder for "
                         "accuracy_vs_time.{csv,md,png} (default outputs). --what tiers prints "
                         "seconds per shot of the rf, baseband and link tiers")
     p.add_argument("--shots", type=int, default=None,
-                   help="accuracy: shots per setting (default 120); coverage: shots of the "
+                   help="accuracy: shots per setting (default 100; the pulsed study 10 times "
+                        "as many); coverage: shots of the "
                         "smaller generated file (default 10,000,000)")
     p.add_argument("--json", action="store_true",
                    help='print {"rf_shot_s", "fft_s", "ratio"} (shot), {"none_s", "<effect>_s", '

@@ -5,7 +5,9 @@ the reference's (|range RMS - reference RMS|, |mean SNR - reference|), one marke
 knob family, every point labelled, each panel's Pareto front (no other setting is both faster and
 more accurate) drawn as a grey step line, and the grey band the sampling noise of a difference
 between two independent runs (2 standard errors). Top rows: the point-target study, one column per SNR
-point; bottom row: the footprint (sub-rays) and turbulence (phase-screen size) studies.
+point; then the footprint (sub-rays) and turbulence (phase-screen size) studies; last row: the
+pulsed study's range (GLAS bench: digitizer sample rate and range estimator), one column per SNR
+point.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ STYLE = {
     ("baseband", "sub_rays"): ("C9", "v", "baseband: sub-rays per footprint"),
     ("rf", "screen"): ("C7", "o", "rf: phase-screen pixels"),
     ("link", "screen"): ("C8", "P", "link: phase-screen pixels"),
+    ("pulsed", "reference"): ("dimgrey", "*", "pulsed reference (4 GHz, Gaussian fit)"),
+    ("pulsed", "pulse_sample_rate"): ("teal", "h", "pulsed: digitizer sample rate"),
+    ("pulsed", "pulse_estimator"): ("magenta", "p", "pulsed: range estimator"),
 }
 _FALLBACK = ("grey", "x", "other")
 
@@ -59,11 +64,14 @@ def _short(row: dict) -> str:
     for prefix in ("rf ", "bb ", "link ", "baseband ", "peak ", "zero pad ", "Fs "):
         if s.startswith(prefix) and row["family"] not in ("link",):
             s = s[len(prefix):]
+    if row["family"] == "pulse_estimator":
+        s = s.split(" (")[0] + ("*" if "(mission)" in s else "")   # its rate: the mission's
     return s.replace(" sub-rays", "").replace(" (default rate)", "default").replace(
-        " (default)", "*").replace("(default rate)", "default")
+        " (default)", "*").replace("(default rate)", "default").replace(" (mission)", "*")
 
 
-def _panel(ax, rows: Sequence[dict], metric: str, title: str, handles: dict):
+def _panel(ax, rows: Sequence[dict], metric: str, title: str, handles: dict,
+           cap_factor: float = 5.0):
     x = np.array([r["s_per_shot"] for r in rows], float)
     ref = next((r for r in rows if r["reference"]), None)
     if metric == "range":
@@ -85,7 +93,7 @@ def _panel(ax, rows: Sequence[dict], metric: str, title: str, handles: dict):
         handles.setdefault("2 s.e. of a difference of two independent runs", band)
     # Points far above the rest (a run with false peaks: range RMS of metres or km) are drawn at
     # the cap with their value written next to them, so they do not squash the other points.
-    cap = (5 * ref["range_rms_m"] if metric == "range" else 5.0) if ref else math.inf
+    cap = (cap_factor * ref["range_rms_m"] if metric == "range" else 5.0) if ref else math.inf
     shown = np.minimum(y, cap)
     front = pareto_front(x, y)
     if front.size > 1:
@@ -148,8 +156,10 @@ def plot_accuracy(rows: Sequence[dict], path: str | Path, *, title: str | None =
     if turb:
         s = turb[0]["snr_target_db"]
         bottom += [(turb, "snr", f"turbulence, frozen flow (SNR {s:g} dB): mean SNR")]
-    ncols = max(len(snrs), len(bottom), 1)
-    nrows = (2 if snrs else 0) + (1 if bottom else 0)
+    pulsed = [r for r in rows if r["study"] == "pulsed"]
+    psnrs = sorted({r["snr_target_db"] for r in pulsed})
+    ncols = max(len(snrs), len(bottom), len(psnrs), 1)
+    nrows = (2 if snrs else 0) + (1 if bottom else 0) + (1 if psnrs else 0)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.6 * ncols, 4.6 * nrows + 1.2),
                              squeeze=False)
     handles: dict = {}
@@ -157,11 +167,18 @@ def plot_accuracy(rows: Sequence[dict], path: str | Path, *, title: str | None =
         sel = [r for r in point if r["snr_target_db"] == s]
         _panel(axes[0, j], sel, "range", f"point target, SNR {s:g} dB: range", handles)
         _panel(axes[1, j], sel, "snr", f"point target, SNR {s:g} dB: mean SNR", handles)
+    row_b = (2 if snrs else 0)
     for j, (sel, metric, text) in enumerate(bottom):
-        _panel(axes[nrows - 1, j], sel, metric, text, handles)
+        _panel(axes[row_b, j], sel, metric, text, handles)
+    for j, s in enumerate(psnrs):
+        sel = [r for r in pulsed if r["snr_target_db"] == s]
+        # the threshold estimator's range walk (decimetres) would squash the other points
+        _panel(axes[nrows - 1, j], sel, "range", f"pulsed (GLAS bench), SNR {s:g} dB: range",
+               handles, cap_factor=1.0)
     used = {(0, j) for j in range(len(snrs))} | {(1, j) for j in range(len(snrs))} \
         if snrs else set()
-    used |= {(nrows - 1, j) for j in range(len(bottom))}
+    used |= {(row_b, j) for j in range(len(bottom))}
+    used |= {(nrows - 1, j) for j in range(len(psnrs))}
     for i in range(nrows):
         for j in range(ncols):
             if (i, j) not in used:
