@@ -206,8 +206,8 @@ def test_gaussian_fit_precision_near_its_cramer_rao_bound(detector):
         return signal_waveform(inst, dataclasses.replace(one, delay_s=one.delay_s + dtau))[0]
 
     dmu = (shifted(h) - shifted(-h)) / (2 * h)
-    if detector == "apd":
-        var = inst.apd.excess_noise_factor * mu + _apd_circuit_variance(inst)
+    if detector == "apd":   # the circuit noise as white over fs / 2 (see _apd_circuit_variance)
+        var = inst.apd.excess_noise_factor * mu + _apd_circuit_variance(inst, white=True)
     else:
         var = mu
     crb = float(arrival_time_crb_s(dmu, var))
@@ -218,10 +218,13 @@ def test_gaussian_fit_precision_near_its_cramer_rao_bound(detector):
     assert np.median(out["d_sigma"]) == pytest.approx(C * crb / 2, rel=0.02)
 
 
-def _apd_circuit_variance(inst):
+def _apd_circuit_variance(inst, white=False):
     """Thermal + amplifier + leakage shot noise of Table 4.7 (eqs. 2.5.1-2.5.5) referred to the
     primary photocurrent over the Gaussian response's noise bandwidth 1 / (4 sqrt(pi) sigma_h),
-    in primary electrons^2 per sample: S B dt^2 / q^2 (written out independently here)."""
+    in primary electrons^2 per sample: S B dt^2 / q^2 (written out independently here).
+    ``white``: over fs / 2 instead, S dt / (2 q^2): the variance per sample of the white noise the
+    detector's response filters. Samples closer than the response carry correlated noise, whose
+    Fisher information the independent-sample sum takes conservatively with this variance."""
     from chirplidar.units import BOLTZMANN_J_K, ELEMENTARY_CHARGE_C as Q
 
     a = inst.apd
@@ -234,7 +237,9 @@ def _apd_circuit_variance(inst):
     amp = a.amp_current_noise_a_per_rthz**2 + a.amp_voltage_noise_v_per_rthz**2 * y2
     psd = (thermal + amp + 2 * Q * a.leakage_current_a) / m**2
     sigma_h = np.sqrt(np.log(2)) / (2 * np.pi * inst.pulse_receiver.bandwidth_hz)
-    bandwidth = min(1 / (4 * np.sqrt(np.pi) * sigma_h), inst.digitizer.sample_rate_hz / 2)
+    bandwidth = inst.digitizer.sample_rate_hz / 2
+    if not white:
+        bandwidth = min(1 / (4 * np.sqrt(np.pi) * sigma_h), bandwidth)
     dt = 1 / inst.digitizer.sample_rate_hz
     return psd * bandwidth * dt**2 / Q**2
 

@@ -19,8 +19,8 @@ detector's; a self-chirped coherent receiver: the highest beat it saw; direct de
 chirp: the chirp's top frequency, dechirped after the photodiode) and its sensitivity: the
 received signal power at which half the shots are detected, from a sweep of the received power
 through the instrument's tier on a point target at the run's median range (:func:`power_sweep`;
-the received power of a pulsed instrument is its pulse's peak, E_rx / FWHM, of a chirped one the
-mean during the record). The sweep also gives the figure: range precision and detection
+the received power of a pulsed instrument is its pulse's peak, of a chirped one the mean during
+the record). The sweep also gives the figure: range precision and detection
 probability against received power.
 """
 
@@ -128,9 +128,12 @@ def results_row(path: Path, cell_m: float) -> dict:
 def instrument_row(config) -> dict:
     """The instrument's own rows: shot rate, transmitted powers, pulse energy, bandwidth."""
     if config.kind == "pulsed":
+        from ..waveform.pulse import peak_power_per_joule
+
         p = config.pulse
         return {"kind": "pulsed", "shot_rate_hz": p.prf_hz, "mean_power_w": p.energy_j * p.prf_hz,
-                "peak_power_w": p.energy_j / p.duration_s, "pulse_energy_j": p.energy_j,
+                "peak_power_w": p.energy_j * peak_power_per_joule(p.shape, p.duration_s),
+                "pulse_energy_j": p.energy_j,
                 "bandwidth_hz": config.pulse_receiver.bandwidth_hz}
     from ..channel.lab import lab_budget
     from ..transmitter.mzm import mzm_peak_power_transmission
@@ -175,6 +178,7 @@ def _sweep_levels(config, range_m: float, levels, seed: int, shots: int | None =
     from ..mission.measure import survey_returns
     from ..tiers.registry import TIERS
     from ..units import db_to_ratio
+    from ..waveform.pulse import peak_power_per_joule
 
     instrument = instrument_from_config(config)
     tier = config.survey.tier
@@ -183,8 +187,9 @@ def _sweep_levels(config, range_m: float, levels, seed: int, shots: int | None =
     threshold = config.survey.detection_threshold_db
     for k, dbm in enumerate(levels):
         watts = 1e-3 * float(db_to_ratio(dbm))
-        if config.kind == "pulsed":   # the pulse's peak power: E_rx / FWHM
-            transmission = watts * config.pulse.duration_s / config.pulse.energy_j
+        if config.kind == "pulsed":   # the pulse's peak power (the pulsed tier's Psig)
+            p = config.pulse
+            transmission = watts / (p.energy_j * peak_power_per_joule(p.shape, p.duration_s))
         else:
             from ..channel.lab import lab_budget
 

@@ -30,6 +30,7 @@ from ..tiers.echoes import Echoes
 from ..tiers.model import Returns
 from ..tiers.registry import TIERS
 from ..units import SPEED_OF_LIGHT_M_S
+from ..waveform.pulse import peak_power_per_joule
 
 #: The top of the sunlight's path through the scene's atmosphere (m): an exponential
 #: atmosphere's extinction has ended well below it.
@@ -141,7 +142,8 @@ def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
     hit = np.isfinite(geom.range_true_m)
     detected = np.where(~hit, 2, np.where(ok & seen, 1, 0)).astype(np.int8)
     det = detected == 1
-    energy_w = instrument.pulse.energy_j / instrument.pulse.duration_s   # peak-equivalent power
+    p = instrument.pulse
+    energy_w = p.energy_j * peak_power_per_joule(p.shape, p.duration_s)   # the pulse's peak
     return {
         "received_power": np.where(hit, energy_w * transmission, np.nan),
         "snr_db": np.where(hit & ok, cols["snr_db"], np.nan),

@@ -15,9 +15,10 @@ window of record_samples, its start ``returns.reference_delay_s`` or centred on 
    applied to the rate, so a photon counter's timing jitter is exact and an APD's filtered shot
    noise has the right mean and variance per sample); an APD multiplies them (Gamma gain of mean
    1 and variance F - 1 per electron, referred to the primary) and adds its circuit noise
-   (thermal, amplifier and surface leakage of ``receiver.detectors.apd_noise``, white over the
-   noise bandwidth min(1 / (4 sqrt(pi) sigma_h), fs / 2), independent samples); a photon counter
-   loses the arrivals within its dead time;
+   (thermal, amplifier and surface leakage of ``receiver.detectors.apd_noise``: its variance per
+   sample over the noise bandwidth min(1 / (4 sqrt(pi) sigma_h), fs / 2), white noise through
+   the detector's response, so samples closer than sigma_h are correlated, :func:`circuit_noise`);
+   a photon counter loses the arrivals within its dead time;
 3. the digitizer (APD): codes 0 .. 2^bits - 1 over [0, full scale], full scale the shot's
    expected peak + 5 standard deviations (``agc``) or ``full_scale_photoelectrons``; a sample
    above full scale is clipped and flags ``saturation``; a photon counter's counts are exact;
@@ -42,6 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.signal import fftconvolve
 
 from ..processing.pulse_estimators import (
     centroid,
@@ -116,6 +118,10 @@ class _Detector:
     circuit_var: float  # circuit noise variance per sample, primary electrons^2
     dead_time_s: float
     analog: bool
+    # The circuit noise's white-noise variance per sample, S dt / (2 q^2) (S its one-sided
+    # current PSD): what a sum over the samples integrates, however fast they come (the
+    # samples closer than the response are correlated, :func:`circuit_noise`).
+    white_var: float = 0.0
 
 
 def check_pulsed(instrument: Instrument) -> None:
@@ -159,7 +165,8 @@ def _detector(instrument: Instrument) -> _Detector:
     noise_bw = min(1.0 / (4.0 * np.sqrt(np.pi) * sigma_h_s(instrument)), fs / 2.0)
     var_e = psd * noise_bw * (dt / ELEMENTARY_CHARGE_C) ** 2  # A^2 -> electrons^2 per sample
     bulk = (a.solar_current_a + a.background_current_a) * dt / ELEMENTARY_CHARGE_C
-    return _Detector(a.quantum_efficiency, a.excess_noise_factor, bulk, var_e, 0.0, True)
+    white = psd * dt / (2.0 * ELEMENTARY_CHARGE_C**2)
+    return _Detector(a.quantum_efficiency, a.excess_noise_factor, bulk, var_e, 0.0, True, white)
 
 
 def sigma_h_s(instrument: Instrument) -> float:
@@ -240,8 +247,25 @@ def _draw(instrument: Instrument, det: _Detector, mean: np.ndarray, rng: np.rand
         return dead_time_counts(rng, counts, dt, det.dead_time_s).astype(float)
     x = apd_multiplied_electrons(rng, counts, det.excess)
     if det.circuit_var > 0:
-        x = x + rng.standard_normal(x.shape) * np.sqrt(det.circuit_var)
+        x = x + circuit_noise(instrument, det, x.shape, rng)
     return x
+
+
+def circuit_noise(instrument: Instrument, det: _Detector, shape, rng: np.random.Generator):
+    """(batch, n) the APD's circuit noise, primary electrons per sample: white noise through
+    the detector's Gaussian impulse response (sigma_h), scaled to ``det.circuit_var`` per
+    sample. Samples closer than the response are correlated, so sampling faster than the
+    detector's bandwidth gains nothing against it; a response shorter than half a sample
+    leaves them independent."""
+    width = sigma_h_s(instrument) * instrument.digitizer.sample_rate_hz  # in samples
+    if width < 0.5:
+        return rng.standard_normal(shape) * np.sqrt(det.circuit_var)
+    half = int(np.ceil(4.0 * width))
+    k = np.arange(-half, half + 1)
+    g = np.exp(-0.5 * (k / width) ** 2)
+    white = rng.standard_normal((shape[0], shape[1] + 2 * half))
+    out = fftconvolve(white, g[None, :], mode="valid", axes=1)
+    return out * np.sqrt(det.circuit_var / np.sum(g * g))
 
 
 def _digitize(instrument: Instrument, det: _Detector, x, mean):
@@ -321,11 +345,13 @@ def _closed_forms(instrument: Instrument, det: _Detector, mu_s, mu_b, thr, var_b
 
 
 def _snr(det: _Detector, mu_s, mu_b, q_var):
-    """N_s^2 / (F (N_s + N_b) + sigma_c^2) over the pulse's equivalent duration (module doc)."""
+    """N_s^2 / (F (N_s + N_b) + sigma_c^2) over the pulse's equivalent duration (module doc);
+    sigma_c^2 the circuit noise integrated over that duration (S T / 2 q^2, whatever the
+    sample rate) plus the quantisation's."""
     n_s = mu_s.sum(axis=1)
     sq = np.einsum("bn,bn->b", mu_s, mu_s)
     n_eq = np.where(sq > 0, n_s**2 / np.where(sq > 0, sq, 1.0), 0.0)
-    noise = det.excess * (n_s + mu_b * n_eq) + (det.circuit_var + q_var) * n_eq
+    noise = det.excess * (n_s + mu_b * n_eq) + (det.white_var + q_var) * n_eq
     return np.where(
         noise > 0, n_s**2 / np.where(noise > 0, noise, 1.0), np.where(n_s > 0, np.inf, 0.0)
     )
@@ -335,8 +361,11 @@ def range_bound_m(instrument: Instrument, returns: Returns, det: _Detector, mu_s
     """(batch,) c / 2n x the Cramer-Rao bound of the return's arrival time
     (:func:`~chirplidar.processing.pulse_estimators.arrival_time_crb_s`) for its expected
     waveform: d mu / d t0 by a central difference of :func:`signal_waveform` in a fixed window,
-    the variance per sample F mu + circuit + quantisation (a photon counter: mu). What an
-    efficient estimator (the Gaussian fit at high SNR) reaches; NaN without signal."""
+    the variance per sample F mu + circuit + quantisation (a photon counter: mu), the circuit
+    noise as its white-noise variance per sample (``_Detector.white_var``): for samples closer
+    than the detector's response, whose circuit noise is correlated, a slightly conservative
+    bound (the response smooths the derivative too). What an efficient estimator (the Gaussian
+    fit at high SNR) reaches; NaN without signal."""
     t = sample_times_s(instrument, returns)
     dt = t[1] - t[0]
     start = float(t[0] - 0.5 * dt)  # the window held fixed while the delay moves
@@ -349,7 +378,7 @@ def range_bound_m(instrument: Instrument, returns: Returns, det: _Detector, mu_s
 
     up, down = shifted(returns.delay_s + h), shifted(returns.delay_s - h)
     mean = mu_s + mu_b[:, None]
-    var = det.excess * mean + (det.circuit_var + q_var)[:, None] if det.analog else mean
+    var = det.excess * mean + (det.white_var + q_var)[:, None] if det.analog else mean
     live = var > 0
     slope = np.where(live, (up - down) / (2.0 * h), 0.0)
     with np.errstate(divide="ignore"):

@@ -1,6 +1,6 @@
 """The instruments of ``chirplidar compare`` against received power: range precision (top) and
 detection probability (bottom), one curve per instrument, each instrument's sensitivity (50 %
-detected) marked. A pulsed instrument's received power is its pulse's peak (E_rx / FWHM), a
+detected) marked. A pulsed instrument's received power is its pulse's peak, a
 chirped one's the mean during the record (:mod:`chirplidar.analysis.compare`)."""
 
 from __future__ import annotations

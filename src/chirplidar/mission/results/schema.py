@@ -141,7 +141,7 @@ SCHEMA: tuple[VarSpec, ...] = (
     VarSpec("snr_db", "float64", "dB", "signal-to-noise ratio in the resolution bandwidth",
             thesis_name="SNR"),
     VarSpec("received_power", "float64", "W", "received optical signal power (pulsed "
-            "instruments: the received pulse energy over the pulse's FWHM)",
+            "instruments: the received pulse's peak power)",
             thesis_name="Psig (dBm)"),
     VarSpec("beat_frequency", "float64", "Hz", "detected beat frequency",
             thesis_name="f_beat_hz"),
