@@ -79,6 +79,12 @@ def test_another_instrument_replaces_the_mission_s_and_its_tier():
     cfg = load_mission(COMPARE, [f"instrument={INSTRUMENTS / 'glas.toml'}"])
     assert cfg.kind == "pulsed" and cfg.laser is None and cfg.survey.tier == "pulsed"
     assert cfg.platform == load_mission(COMPARE).platform
+    # A pulsed instrument drops the chirped receivers' range gate and LO offsets (ICESat-2's).
+    sat = load_mission(ROOT / "missions" / "icesat_like.toml")
+    assert sat.survey.range_window_m is not None and sat.survey.doppler_compensation == "lo_offset"
+    cfg = load_mission(ROOT / "missions" / "icesat_like.toml",
+                       [f"instrument={INSTRUMENTS / 'glas.toml'}"])
+    assert cfg.survey.range_window_m is None and cfg.survey.doppler_compensation == "none"
     # A chirped instrument keeps the mission's tier (it flies chirped instruments).
     cfg = load_mission(COMPARE, [f"instrument={INSTRUMENTS / 'ku_hybrid.toml'}",
                                  "survey.tier=baseband"])

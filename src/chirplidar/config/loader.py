@@ -128,6 +128,11 @@ INSTRUMENT_SECTIONS = frozenset(CHIRPED_SECTIONS + PULSED_SECTIONS + ("channel",
                                                                        "effects"))
 
 
+#: Survey keys of the chirped receivers (their range gate and LO offsets), which a pulsed
+#: instrument flown with ``--instrument`` drops: its digitizer's record is its window.
+CHIRPED_SURVEY_KEYS = ("survey.range_window_m", "survey.doppler_compensation")
+
+
 def is_instrument_key(key: str) -> bool:
     """Whether a dotted key belongs to the instrument (:data:`INSTRUMENT_SECTIONS`)."""
     return key.split(".", 1)[0] in INSTRUMENT_SECTIONS
@@ -150,7 +155,8 @@ def with_instrument(flat: Mapping[str, Any], instrument: Mapping[str, Any]) -> d
     """The mission ``flat`` flown with another instrument: its instrument keys replaced, and
     its shot rate (``survey.prf_hz``) the new instrument's own; its ``survey.tier`` too, when
     the mission's tier does not fly the new instrument's kind (a pulsed instrument flies the
-    pulsed tier only)."""
+    pulsed tier only); a pulsed instrument drops the chirped receivers' survey keys
+    (:data:`CHIRPED_SURVEY_KEYS`)."""
     from ..tiers.registry import tiers_flying
 
     out = {k: v for k, v in flat.items() if not is_instrument_key(k) and k != "survey.prf_hz"}
@@ -158,6 +164,9 @@ def with_instrument(flat: Mapping[str, Any], instrument: Mapping[str, Any]) -> d
         kind = "pulsed" if any(k.startswith("pulse.") for k in instrument) else "chirped"
         if out.get("survey.tier") not in tiers_flying(kind):
             out.pop("survey.tier", None)
+        if kind == "pulsed":   # the chirped receivers' gate and LO: a pulsed one has neither
+            for key in CHIRPED_SURVEY_KEYS:
+                out.pop(key, None)
     return {**out, **instrument}
 
 
