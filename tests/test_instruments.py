@@ -229,3 +229,11 @@ def test_compare_flies_both_instruments_and_shows_the_trade(tmp_path, capsys):
         assert item["range_precision_m"] > 0 and item["coverage"] > 0
         assert Path(item["results"]).is_file()
     assert (tmp_path / "compare.png").stat().st_size > 10_000
+
+
+def test_compare_checks_every_instrument_before_flying_any(tmp_path, capsys):
+    # greenland_uav.toml has no [background]: GLAS cannot fly it, and nothing is flown.
+    _one_line(["compare", str(GREENLAND), "--instrument", str(INSTRUMENTS / "ku_self_chirped.toml"),
+               "--instrument", str(INSTRUMENTS / "glas.toml"), "--out-dir", str(tmp_path / "out"),
+               "--no-progress"], capsys, "--instrument", "glas.toml", "[background]")
+    assert not (tmp_path / "out").exists()

@@ -228,15 +228,12 @@ def compare_instruments(mission, instruments, *, out_dir, overrides=(), span_s=N
     from ..config import load_mission
     from ..mission.runner import run_mission
 
+    flights = [(Path(p).resolve(), _flight_overrides(mission, p, overrides, span_s, seed))
+               for p in instruments]   # every instrument checked before any flies
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     results = []
-    for path in instruments:
-        path = Path(path).resolve()
-        sets = [*overrides, f"instrument={path}"]
-        if span_s is not None:
-            start = load_mission(mission, sets).survey.start_s or 0.0
-            sets.append(f"survey.stop_s={start + float(span_s)!r}")
+    for path, sets in flights:
         out = out_dir / f"{Path(mission).stem}_{path.stem}.nc"
         run = run_mission(mission, overrides=sets, out=out, seed=seed, overwrite=True,
                           progress=progress)
@@ -251,6 +248,23 @@ def compare_instruments(mission, instruments, *, out_dir, overrides=(), span_s=N
             item.row["sensitivity_dbm"] = sensitivity_dbm(item.sweep)
         results.append(item)
     return results
+
+
+def _flight_overrides(mission, instrument, overrides, span_s, seed) -> list[str]:
+    """The ``--set`` list that flies ``instrument`` over ``mission`` (its span cut to ``span_s``),
+    checked as ``run`` checks a mission before any shot; ConfigError naming the instrument."""
+    from ..config import ConfigError, load_mission
+    from ..mission.preflight import prepare
+
+    sets = [*overrides, f"instrument={Path(instrument).resolve()}"]
+    try:
+        if span_s is not None:
+            start = load_mission(mission, sets).survey.start_s or 0.0
+            sets.append(f"survey.stop_s={start + float(span_s)!r}")
+        prepare(mission, overrides=sets, seed=seed)
+    except ConfigError as exc:
+        raise ConfigError(f"--instrument {instrument}: {exc}") from None
+    return sets
 
 
 def _sweep_for(config, path: Path, median_dbm: float) -> PowerSweep:
