@@ -85,8 +85,8 @@ class MissionConfig(StrictModel):
                     f"remove [{'], ['.join(mixed)}] (chirp keys), or remove [pulse] for a "
                     "chirped instrument")
             missing = [s for s in PULSED_REQUIRED if s not in data]
-            detector = (data.get("pulse_receiver") or {}).get("detector") \
-                if isinstance(data.get("pulse_receiver"), dict) else None
+            rx = data.get("pulse_receiver")
+            detector = rx.get("detector") if isinstance(rx, dict) else None
             if detector in ("apd", "photon_counting") and detector not in data:
                 missing.append(detector)
         else:
