@@ -121,3 +121,29 @@ def reference_target(config, **overrides):
         "channel.target_reflectivity": 1.0, "channel.atmospheric_transmission": 1.0,
         "channel.optical_transmission": 1.0, "channel.extra_attenuation_db": 0.0,
         "effects.enabled": [], **overrides})
+
+
+def apd_circuit_variance(apd, bandwidth_hz: float, fs_hz: float, *, white: bool = False):
+    """An [apd] section's circuit noise (thesis Table 4.7 terms, eqs. 2.5.1-2.5.5: thermal
+    4 k T / R, amplifier i_n^2 + e_n^2 |Y|^2, leakage shot 2 q I_s) referred to the primary
+    photocurrent (/ M^2), over the noise bandwidth 1 / (4 sqrt(pi) sigma_h) of a Gaussian
+    response of -3 dB ``bandwidth_hz`` (at most fs / 2), as primary electrons^2 per sample
+    (x dt^2 / q^2): written out here independently of the tier. ``white``: over fs / 2
+    instead, S dt / (2 q^2), the variance per sample of the white noise the response filters."""
+    import numpy as np
+
+    from chirplidar.units import BOLTZMANN_J_K, ELEMENTARY_CHARGE_C as Q
+
+    thermal = 4 * BOLTZMANN_J_K * (apd.feedback_temperature_k / apd.feedback_resistance_ohm
+                                   + apd.detector_temperature_k / apd.dynamic_resistance_ohm)
+    y2 = (1 / apd.feedback_resistance_ohm + 1 / apd.dynamic_resistance_ohm) ** 2 + (
+        2 * np.pi * apd.center_frequency_hz
+        * (apd.detector_capacitance_f + apd.feedback_capacitance_f)) ** 2
+    amp = apd.amp_current_noise_a_per_rthz**2 + apd.amp_voltage_noise_v_per_rthz**2 * y2
+    psd = (thermal + amp + 2 * Q * apd.leakage_current_a) / apd.gain**2
+    band = fs_hz / 2
+    if not white:
+        sigma_h = np.sqrt(np.log(2)) / (2 * np.pi * bandwidth_hz)
+        band = min(1 / (4 * np.sqrt(np.pi) * sigma_h), band)
+    return psd * band / (fs_hz * Q) ** 2
+

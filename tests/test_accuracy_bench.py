@@ -21,7 +21,7 @@ from chirplidar.benchmarks.timing import bench_tiers
 from chirplidar.cli import main
 from chirplidar.config import ConfigError, config_with
 
-from conftest import BENCH, CH5, GLAS_BENCH
+from conftest import BENCH, CH5, GLAS_BENCH, apd_circuit_variance
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 NUMERIC = [c for c in COLUMNS if c not in ("study", "family", "tier", "setting", "knob", "value",
@@ -230,7 +230,6 @@ def test_cli_accuracy_bad_mission_override_is_an_error(tmp_path, capsys):
 # ------------------------------------------------------------------------------- pulsed study
 
 C = 299_792_458.0                      # m/s (SI definition)
-Q_E, K_B = 1.602176634e-19, 1.380649e-23   # C, J/K (SI definitions)
 PULSED_SMALL = dict(families=PULSED_FAMILIES, pulsed_snr_db=(20.0, 30.0, 40.0),
                     pulse_sample_rates_hz=(0.25e9, 1e9), pulse_reference_rate_hz=4e9,
                     pulsed_shots=300, pulsed_batch=100)
@@ -281,20 +280,8 @@ def test_pulsed_study_rows_and_reference(pulsed_rows):
 
 
 def _glas_circuit_variance(cfg, fs_hz):
-    """The [apd] circuit noise of instruments/glas.toml (thesis Table 4.7 terms, eqs. 2.5.1-2.5.5:
-    thermal 4 k T / R, amplifier i_n^2 + e_n^2 |Y|^2, leakage shot 2 q I_s) referred to the
-    primary photocurrent (/ M^2), over the Gaussian response's noise bandwidth 1 / (4 sqrt(pi)
-    sigma_h) (at most fs / 2), as primary electrons^2 per sample (x dt^2 / q^2)."""
-    a = cfg.apd
-    thermal = 4 * K_B * (a.feedback_temperature_k / a.feedback_resistance_ohm
-                         + a.detector_temperature_k / a.dynamic_resistance_ohm)
-    y2 = (1 / a.feedback_resistance_ohm + 1 / a.dynamic_resistance_ohm) ** 2 + (
-        2 * np.pi * a.center_frequency_hz * (a.detector_capacitance_f + a.feedback_capacitance_f)
-    ) ** 2
-    amp = a.amp_current_noise_a_per_rthz**2 + a.amp_voltage_noise_v_per_rthz**2 * y2
-    psd = (thermal + amp + 2 * Q_E * a.leakage_current_a) / a.gain**2
-    sigma_h = np.sqrt(np.log(2)) / (2 * np.pi * cfg.pulse_receiver.bandwidth_hz)
-    return psd * min(1 / (4 * np.sqrt(np.pi) * sigma_h), fs_hz / 2) / (fs_hz * Q_E) ** 2
+    """:func:`conftest.apd_circuit_variance` of instruments/glas.toml at ``fs_hz``."""
+    return apd_circuit_variance(cfg.apd, cfg.pulse_receiver.bandwidth_hz, fs_hz)
 
 
 @pytest.mark.parametrize("snr", [30.0, 40.0])

@@ -39,7 +39,7 @@ from chirplidar.tiers.model import Instrument, Returns
 from chirplidar.tiers.pulsed import (detection_window_samples, expected_waveform,
                                      sample_times_s, signal_waveform)
 from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
-from conftest import CH5
+from conftest import CH5, apd_circuit_variance
 
 C = SPEED_OF_LIGHT_M_S
 RANGE_M = 600e3  # GLAS's operating altitude (Table 2.1)
@@ -219,29 +219,9 @@ def test_gaussian_fit_precision_near_its_cramer_rao_bound(detector):
 
 
 def _apd_circuit_variance(inst, white=False):
-    """Thermal + amplifier + leakage shot noise of Table 4.7 (eqs. 2.5.1-2.5.5) referred to the
-    primary photocurrent over the Gaussian response's noise bandwidth 1 / (4 sqrt(pi) sigma_h),
-    in primary electrons^2 per sample: S B dt^2 / q^2 (written out independently here).
-    ``white``: over fs / 2 instead, S dt / (2 q^2): the variance per sample of the white noise the
-    detector's response filters. Samples closer than the response carry correlated noise, whose
-    Fisher information the independent-sample sum takes conservatively with this variance."""
-    from chirplidar.units import BOLTZMANN_J_K, ELEMENTARY_CHARGE_C as Q
-
-    a = inst.apd
-    m = a.gain
-    thermal = 4 * BOLTZMANN_J_K * (a.feedback_temperature_k / a.feedback_resistance_ohm
-                                   + a.detector_temperature_k / a.dynamic_resistance_ohm)
-    y2 = (1 / a.feedback_resistance_ohm + 1 / a.dynamic_resistance_ohm) ** 2 + (
-        2 * np.pi * a.center_frequency_hz * (a.detector_capacitance_f + a.feedback_capacitance_f)
-    ) ** 2
-    amp = a.amp_current_noise_a_per_rthz**2 + a.amp_voltage_noise_v_per_rthz**2 * y2
-    psd = (thermal + amp + 2 * Q * a.leakage_current_a) / m**2
-    sigma_h = np.sqrt(np.log(2)) / (2 * np.pi * inst.pulse_receiver.bandwidth_hz)
-    bandwidth = inst.digitizer.sample_rate_hz / 2
-    if not white:
-        bandwidth = min(1 / (4 * np.sqrt(np.pi) * sigma_h), bandwidth)
-    dt = 1 / inst.digitizer.sample_rate_hz
-    return psd * bandwidth * dt**2 / Q**2
+    """:func:`conftest.apd_circuit_variance` of the instrument's [apd] and detector."""
+    return apd_circuit_variance(inst.apd, inst.pulse_receiver.bandwidth_hz,
+                                inst.digitizer.sample_rate_hz, white=white)
 
 
 @pytest.mark.parametrize("detector", ["apd", "photon_counting"])
