@@ -164,20 +164,28 @@ def received_power(config, scene, geom, seq, *, exclude_effects=("doppler",)):
 
 def received(config, scene, geom, seq, exclude_effects=("doppler",)):
     """:func:`received_power` and the effects' (n, b) carrier phase [rad] (speckle)."""
-    transmission, mean, std, frac, phase = footprint_transmission(config, scene, geom, seq,
-                                                                  exclude_effects)
-    return lab_budget(config).ptx_w * transmission, mean, std, frac, phase
+    tot, scale, mean, std, frac, phase = _footprint_terms(config, scene, geom, seq,
+                                                          exclude_effects)
+    return lab_budget(config).ptx_w * tot * scale, mean, std, frac, phase
 
 
 def footprint_transmission(config, scene, geom, seq, exclude_effects=("doppler",)):
     """Per shot-beam: (received / transmitted power or energy (W/W), power-weighted mean range
     [m], range std [m], sub-ray fractions (n, b, k) after transmission and effects, the
     effects' carrier phase [rad])."""
+    tot, scale, mean, std, frac, phase = _footprint_terms(config, scene, geom, seq,
+                                                          exclude_effects)
+    return tot * scale, mean, std, frac, phase
+
+
+def _footprint_terms(config, scene, geom, seq, exclude_effects):
+    """(the sub-rays' summed power fraction, the path's and effects' factor, mean range, range
+    std, the sub-ray fractions after that factor, the effects' phase), each per shot-beam."""
     frac = sub_ray_power_fractions(config, scene, geom)
     power, phase = effect_returns(config, scene, geom, seq, exclude=exclude_effects)
     scale = path_transmission(config, scene, geom) * power
     mean, std, tot = weighted_range_stats(frac, geom.sub_range_m)
-    return tot * scale, mean, std, frac * scale[..., None], phase
+    return tot, scale, mean, std, frac * scale[..., None], phase
 
 
 def shot_doppler_hz(config, scene, geom):
