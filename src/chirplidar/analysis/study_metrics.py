@@ -20,6 +20,8 @@ results file chunk by chunk (:func:`point_metrics`).
                                        and ``height_precision_m`` rest on (the table shows
                                        it; the plot marks points resting on fewer than 10)
 ``detection_threshold_db``      dB     the point's ``survey.detection_threshold_db``
+                                       (NaN for a pulsed instrument: its threshold is
+                                       in noise sigmas)
 ==============================  =====  ===================================================
 
 A surface shot with no signal (zero received power; its ``snr_db`` is NaN in the results file,

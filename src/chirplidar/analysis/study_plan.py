@@ -185,8 +185,10 @@ def _plan_point(mission_path: Path, axes, index, overrides: tuple, *, span_s, ce
                           f"(survey.prf_hz = {sv.prf_hz:g} Hz)")
     if cell_m is not None:
         _check_cell(cell_m, config, scene, label)
-    return StudyPoint(tuple(int(i) for i in index), values, tuple(point_over),
-                      float(sv.detection_threshold_db), n_shots, int(plan.beams.n_beams))
+    # A pulsed instrument detects with its own threshold (pulse_ranging.threshold_sigma).
+    threshold = float("nan") if config.kind == "pulsed" else float(sv.detection_threshold_db)
+    return StudyPoint(tuple(int(i) for i in index), values, tuple(point_over), threshold,
+                      n_shots, int(plan.beams.n_beams))
 
 
 def _check_cell(cell_m: float, config, scene, label: str) -> None:
