@@ -10,13 +10,13 @@ with |a_k|^2 proportional to I_t at the scatterer xi_k and z_k independent circu
 Gaussian (E|z|^2 = 1). E is then circular complex Gaussian with E|E|^2 = sum |a_k|^2 = 1 and
 (van Cittert-Zernike, Goodman 2007 Sec. 5.6) degree of coherence
 
-    mu(d) = sum_k |a_k|^2 exp(-i 2 pi d . s_k)  ~  FT[I_t](d / (lambda R)) / FT[I_t](0).
+    mu(d) = sum_k |a_k|^2 exp(-i 2 pi d . s_k)  ~  FT{I_t}(d / (lambda R)) / FT{I_t}(0).
 
 * Gaussian footprint, 1/e^2 intensity radius w: I_t = exp(-2 |xi|^2 / w^2) gives
   mu(d) = exp(-(pi w d / (lambda R))^2 / 2) = exp(-d^2 / (2 rho^2)), |mu|^2 = exp(-d^2 / rho^2),
   rho = lambda R / (pi w)  (``speckle_coherence_radius_m``).
 * Monostatic (Winzer & Leeb 1998, Opt. Lett. 23, 986): the footprint is the far field of the
-  truncated transmit mode P M, so |a(s)|^2 = |FT[P M](s)|^2 and mu(d) = C(d) / C(0), C the
+  truncated transmit mode P M, so |a(s)|^2 = |FT{P M}(s)|^2 and mu(d) = C(d) / C(0), C the
   autocorrelation of P M.
 
 The sums are evaluated by FFT on a target grid of pitch 1 / (N dx) (N >= 2 n), so the pupil
@@ -387,7 +387,7 @@ def mean_mixing_efficiency_focal(
     """Mean mixing efficiency of a square focal-plane detector (side L, uniform LO) in speckle
     with many grains across the (annular) aperture P (pupil coherence << D).
 
-    The focal-plane speckle then has mu_f(d) = FT[P](d / (lambda f)) / A_P (the aperture's
+    The focal-plane speckle then has mu_f(d) = FT{P}(d / (lambda f)) / A_P (the aperture's
     amplitude spread function, Airy for alpha = 0; van Cittert-Zernike with the pupil as the
     incoherent source), and by Parseval (1/A_d^2) int int_det mu_f equals the overlap of the
     LO back-propagated to the pupil with the aperture (the antenna theorem, Siegman 1966):
