@@ -108,20 +108,11 @@ class MissionConfig(StrictModel):
     def _pulsed(self):
         if self.pulse is None:
             return self
+        from ..waveform.pulse import check_pulse_timing
+
         dig = self.digitizer
-        if self.pulse.duration_s * dig.sample_rate_hz < 1.0:
-            raise ValueError(
-                f"pulse.duration_s = {self.pulse.duration_s:g} s is shorter than one sample of "
-                f"digitizer.sample_rate_hz = {dig.sample_rate_hz:g} Hz "
-                f"({1.0 / dig.sample_rate_hz:g} s): the digitizer cannot resolve the pulse; "
-                "raise the sample rate")
-        window_s = dig.record_samples / dig.sample_rate_hz
-        if window_s >= 1.0 / self.pulse.prf_hz:
-            raise ValueError(
-                f"pulse.prf_hz = {self.pulse.prf_hz:g} Hz fires every "
-                f"{1.0 / self.pulse.prf_hz:g} s, within the range window of "
-                f"digitizer.record_samples / sample_rate_hz = {window_s:g} s: successive "
-                "pulses' returns would overlap in the window; lower the PRF or the record")
+        check_pulse_timing(self.pulse.duration_s, self.pulse.prf_hz, dig.sample_rate_hz,
+                           dig.record_samples)
         sv = self.survey
         if sv is not None and abs(sv.prf_hz - self.pulse.prf_hz) > 1e-9 * self.pulse.prf_hz:
             raise ValueError(

@@ -63,6 +63,7 @@ from ..receiver.photon import apd_multiplied_electrons, dead_time_counts, poisso
 from ..units import ELEMENTARY_CHARGE_C, PLANCK_J_S, SPEED_OF_LIGHT_M_S, power_dbm, ratio_db
 from ..waveform.pulse import (
     bin_energy_fractions,
+    check_pulse_timing,
     impulse_sigma_s,
     peak_power_per_joule,
     response_fwhm_s,
@@ -136,19 +137,8 @@ def check_pulsed(instrument: Instrument) -> None:
         raise ValueError(
             "pulse_receiver.detector = 'photon_counting' needs a [photon_counting] section"
         )
-    dur, fs = instrument.pulse.duration_s, instrument.digitizer.sample_rate_hz
-    if dur < 1.0 / fs:
-        raise ValueError(
-            f"pulse.duration_s = {dur:g} s is shorter than one digitizer sample "
-            f"(1 / digitizer.sample_rate_hz = {1.0 / fs:g} s): the pulse falls between samples"
-        )
-    window = instrument.digitizer.record_samples / fs
-    if window >= 1.0 / instrument.pulse.prf_hz:
-        raise ValueError(
-            f"digitizer.record_samples / digitizer.sample_rate_hz = {window:g} s is not shorter "
-            f"than the pulse period 1 / pulse.prf_hz = {1.0 / instrument.pulse.prf_hz:g} s: "
-            "the next pulse would overlap the range window"
-        )
+    p, dig = instrument.pulse, instrument.digitizer
+    check_pulse_timing(p.duration_s, p.prf_hz, dig.sample_rate_hz, dig.record_samples)
 
 
 def _detector(instrument: Instrument) -> _Detector:

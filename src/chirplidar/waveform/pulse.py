@@ -113,3 +113,24 @@ def response_fwhm_s(shape: str, duration_s: float, sigma_h_s: float) -> float:
 
     peak = level(0.0)
     return 2.0 * brentq(lambda t: level(t) - 0.5 * peak, 0.0, half + 10.0 * sigma_h_s)
+
+
+def check_pulse_timing(
+    duration_s: float, prf_hz: float, sample_rate_hz: float, record_samples: int
+) -> None:
+    """ValueError (one line, naming the keys) for a pulse shorter than one digitizer sample,
+    or a range window (record_samples / sample_rate_hz) not shorter than the pulse period
+    1 / prf_hz, which the next pulse's return would overlap."""
+    if duration_s < 1.0 / sample_rate_hz:
+        raise ValueError(
+            f"pulse.duration_s = {duration_s:g} s is shorter than one digitizer sample "
+            f"(1 / digitizer.sample_rate_hz = {1.0 / sample_rate_hz:g} s): the pulse falls "
+            "between samples; raise the sample rate"
+        )
+    window = record_samples / sample_rate_hz
+    if window >= 1.0 / prf_hz:
+        raise ValueError(
+            f"digitizer.record_samples / digitizer.sample_rate_hz = {window:g} s is not shorter "
+            f"than the pulse period 1 / pulse.prf_hz = {1.0 / prf_hz:g} s: the next pulse would "
+            "overlap the range window; lower the PRF or the record"
+        )
