@@ -96,12 +96,19 @@ def lab_background_power_w(config: MissionConfig) -> float:
     if bg.source == "sun":
         raise ValueError("background.source = 'sun' needs a survey (the sun's elevation at each "
                          "shot); on the bench give background.source = 'radiance'")
+    return float(collected_background_w(config, bg.radiance_w_m2_sr_m))
+
+
+def collected_background_w(config: MissionConfig, radiance_w_m2_sr_m):
+    """Background power (W) a pulsed receiver collects from a spectral radiance at its
+    telescope: through its filter, field of view, aperture and the end-to-end optics
+    (``channel.optical_transmission`` is a field transmission: squared for power)."""
     from ..receiver.background import background_power_w
 
     rx = config.pulse_receiver
-    return float(background_power_w(bg.radiance_w_m2_sr_m, rx.filter_bandwidth_m,
-                                    config.channel.telescope_diameter_m, rx.field_of_view_rad,
-                                    config.channel.optical_transmission ** 2))
+    return background_power_w(radiance_w_m2_sr_m, rx.filter_bandwidth_m,
+                              config.channel.telescope_diameter_m, rx.field_of_view_rad,
+                              config.channel.optical_transmission ** 2)
 
 
 def simulate_lab(config: MissionConfig, tier: str, rng: np.random.Generator, *, batch: int = 1,

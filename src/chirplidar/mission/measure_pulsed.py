@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..channel.footprint import footprint_transmission
+from ..channel.lab import collected_background_w
 from ..config.instrument import instrument_from_config
 from ..processing.ranging import two_way_delay_s
 from ..streams import stream
@@ -55,9 +56,9 @@ def sun_elevation_rad(config, scene, t_s) -> np.ndarray:
 def background_power_per_shot_w(config, scene, geom) -> np.ndarray:
     """(n, b) background light the receiver collects at each shot-beam (W); see the module
     docstring."""
-    from ..receiver.background import background_power_w, surface_solar_radiance_w_m2_sr_m
+    from ..receiver.background import surface_solar_radiance_w_m2_sr_m
 
-    bg, rx, ch = config.background, config.pulse_receiver, config.channel
+    bg = config.background
     shape = geom.range_true_m.shape
     if bg.source == "none":
         return np.zeros(shape)
@@ -74,8 +75,7 @@ def background_power_per_shot_w(config, scene, geom) -> np.ndarray:
         rho = scene.material_reflectivity(config.wavelength_m)[np.where(hit, geom.material, 0)]
         radiance = np.where(hit, surface_solar_radiance_w_m2_sr_m(
             bg.solar_irradiance_w_m2_m, elev, rho, down * up), 0.0)
-    return background_power_w(radiance, rx.filter_bandwidth_m, ch.telescope_diameter_m,
-                              rx.field_of_view_rad, ch.optical_transmission ** 2)
+    return collected_background_w(config, radiance)
 
 
 def range_batches(range_m: np.ndarray, flat: np.ndarray, window_m: float):
@@ -92,17 +92,17 @@ def range_batches(range_m: np.ndarray, flat: np.ndarray, window_m: float):
         start = stop
 
 
-def pulsed_batch_returns(config, geom, transmission, frac, background_w, idx) -> Returns:
-    """The returns of the shot-beams ``idx`` (flat): one window centred on their median
-    range, each shot's sub-rays as echoes at their delays from it, its energy transmission as
-    its power factor."""
+def pulsed_batch_returns(config, geom, transmission, range_m, frac, background_w,
+                         idx) -> Returns:
+    """The returns of the shot-beams ``idx`` (flat): one window centred on the median of their
+    power-weighted mean ranges ``range_m``, each shot's sub-rays as echoes at their delays from
+    it, its energy transmission as its power factor."""
     b = transmission.shape[1]
     ii, jj = np.divmod(idx, b)
     n_grp = config.channel.group_index
     sub = geom.sub_range_m[ii, jj]                                   # (m, k)
     w = np.where(np.isfinite(sub), frac[ii, jj], 0.0)
-    r_shot = np.nansum(w * np.where(np.isfinite(sub), sub, 0.0), axis=1) / w.sum(axis=1)
-    r0 = float(np.median(r_shot))
+    r0 = float(np.median(range_m[ii, jj]))
     dtau = 2.0 * n_grp * (np.where(w > 0, sub, r0) - r0) / SPEED_OF_LIGHT_M_S
     t_mean = float(np.mean(transmission[ii, jj]))
     return Returns(transmission=t_mean, delay_s=float(two_way_delay_s(r0, n_grp)), range_m=r0,
@@ -128,7 +128,8 @@ def measure_pulsed(config, scene, geom, seq, progress=None) -> dict:
     seen = np.zeros((n, b), bool)
     flat = np.flatnonzero(ok.ravel())
     for batch_index, idx in enumerate(range_batches(r_mean, flat, window_m)):
-        returns = pulsed_batch_returns(config, geom, transmission, frac, background_w, idx)
+        returns = pulsed_batch_returns(config, geom, transmission, r_mean, frac, background_w,
+                                       idx)
         out = TIERS["pulsed"].simulate(instrument, returns, stream(seq, "pulsed_batch",
                                                                    batch_index))
         rows = np.divmod(idx, b)

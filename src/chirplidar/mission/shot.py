@@ -266,7 +266,7 @@ def _pulsed_shot_returns(prep, geom, seq, i: int, j: int):
                           "receives no energy from its footprint")
     background = background_power_per_shot_w(config, prep.scene, geom)
     flat = np.array([i * transmission.shape[1] + j])
-    returns = pulsed_batch_returns(config, geom, transmission, frac, background, flat)
+    returns = pulsed_batch_returns(config, geom, transmission, r_mean, frac, background, flat)
     e = returns.echoes   # one shot's echoes as (k,): shared by every record of a --batch
     one = Echoes(e.delay_offset_s[0], e.power_weight[0], e.phase_rad[0])
     return dataclasses.replace(returns, echoes=one), r_mean
