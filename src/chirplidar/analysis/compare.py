@@ -225,19 +225,18 @@ def compare_instruments(mission, instruments, *, out_dir, overrides=(), span_s=N
                         sweep: bool = True) -> list[InstrumentResult]:
     """Fly ``mission`` with each instrument file and tabulate them (module docstring). Each run
     writes ``out_dir/<mission>_<instrument>.nc`` (replacing an earlier comparison's)."""
-    from ..config import load_mission
     from ..mission.runner import run_mission
 
-    flights = [(Path(p).resolve(), _flight_overrides(mission, p, overrides, span_s, seed))
-               for p in instruments]   # every instrument checked before any flies
+    # every instrument's flight checked (prepared as `run` prepares it) before any flies
+    flights = [(Path(p).resolve(), *_prepared_flight(mission, p, overrides, span_s, seed))
+               for p in instruments]
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     results = []
-    for path, sets in flights:
+    for path, sets, config in flights:
         out = out_dir / f"{Path(mission).stem}_{path.stem}.nc"
         run = run_mission(mission, overrides=sets, out=out, seed=seed, overwrite=True,
                           progress=progress)
-        config = load_mission(mission, sets if seed is None else [*sets, f"seed={seed}"])
         item = InstrumentResult(path, path.stem, run.path)
         item.row = {"tier": config.survey.tier, **instrument_row(config),
                     **results_row(run.path, cell_m)}
@@ -250,9 +249,10 @@ def compare_instruments(mission, instruments, *, out_dir, overrides=(), span_s=N
     return results
 
 
-def _flight_overrides(mission, instrument, overrides, span_s, seed) -> list[str]:
-    """The ``--set`` list that flies ``instrument`` over ``mission`` (its span cut to ``span_s``),
-    checked as ``run`` checks a mission before any shot; ConfigError naming the instrument."""
+def _prepared_flight(mission, instrument, overrides, span_s, seed):
+    """(the ``--set`` list that flies ``instrument`` over ``mission``, its span cut to
+    ``span_s``; the configuration ``run`` prepares from it), checked as ``run`` checks a mission
+    before any shot; ConfigError naming the instrument."""
     from ..config import ConfigError, load_mission
     from ..mission.preflight import prepare
 
@@ -261,10 +261,10 @@ def _flight_overrides(mission, instrument, overrides, span_s, seed) -> list[str]
         if span_s is not None:
             start = load_mission(mission, sets).survey.start_s or 0.0
             sets.append(f"survey.stop_s={start + float(span_s)!r}")
-        prepare(mission, overrides=sets, seed=seed)
+        config = prepare(mission, overrides=sets, seed=seed)[0]
     except ConfigError as exc:
         raise ConfigError(f"--instrument {instrument}: {exc}") from None
-    return sets
+    return sets, config
 
 
 def _sweep_for(config, path: Path, median_dbm: float) -> PowerSweep:
