@@ -215,7 +215,7 @@ class MissionConfig(StrictModel):
                 "'phase_noise' needs a linewidth > 0: the list is the one switch for each effect "
                 f"(linewidth {self.laser.linewidth_hz:g} Hz, enabled {list(self.effects.enabled)})")
         if self.survey is not None:
-            record_rate = 1.0 / (self.processing.averages * self.waveform.chirp_period_s)
+            record_rate = record_rate_hz(self.processing.averages, self.waveform.chirp_period_s)
             if self.survey.prf_hz > record_rate * (1 + 1e-9):
                 raise ValueError(
                     f"survey.prf_hz = {self.survey.prf_hz:g} Hz is faster than the record rate "
@@ -232,6 +232,12 @@ class MissionConfig(StrictModel):
         return int(round(self.simulation.duration_s * self.simulation.sample_rate_hz))
 
 
+def record_rate_hz(averages, chirp_period_s) -> float:
+    """A chirped instrument's records per second, one after another: 1 / (averages x chirp
+    period) (each record averages ``processing.averages`` chirps, sys.avg)."""
+    return 1.0 / (averages * chirp_period_s)
+
+
 def instrument_survey_defaults(data: dict) -> dict:
     """A survey's tier and shot rate when the mission leaves them out: the instrument's own.
     A pulsed instrument flies the pulsed tier at its laser's PRF; a chirped one the link tier
@@ -240,7 +246,7 @@ def instrument_survey_defaults(data: dict) -> dict:
     try:
         if "pulse" in data:
             return {"tier": "pulsed", "prf_hz": data["pulse"]["prf_hz"]}
-        rate = 1.0 / (data["processing"]["averages"] * data["waveform"]["chirp_period_s"])
+        rate = record_rate_hz(data["processing"]["averages"], data["waveform"]["chirp_period_s"])
     except (KeyError, TypeError, ZeroDivisionError):
         return {}  # the sections' own validation names what is missing
     return {"tier": "link", "prf_hz": rate}
