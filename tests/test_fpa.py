@@ -155,7 +155,7 @@ def _estimated_phase_ratio(g_bar, m=16, seed=5):
     n = np.ones((N_MC, m))
     est = fpa.combined_snr(fpa.combining_gains(c + _cn(rng, (N_MC, m)), n, "mrc"), c, n)
     known = fpa.mrc_snr(np.abs(c) ** 2, n)
-    pred = (known * (known + 1) / (known + m)).mean() / known.mean()
+    pred = (known * fpa.estimated_mrc_factor(known, m)).mean() / known.mean()
     return est.mean() / known.mean(), est.std() / np.sqrt(N_MC) / known.mean(), pred
 
 

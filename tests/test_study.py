@@ -47,7 +47,7 @@ NADIR = 'pattern = "nadir"'
 ALTITUDES = "platform.uav.altitude_m=100:1000:4:log"     # 100, 215, 464, 1000 m
 SPAN = 2.0                                                # s: 40 shots per point at 20 Hz
 JSON_KEYS = {"detection_probability", "median_snr_db", "median_received_power_dbm",
-             "snr_p10_db", "snr_p90_db", "range_rms_m", "height_precision_m",
+             "snr_p01_db", "snr_p10_db", "snr_p90_db", "range_rms_m", "height_precision_m",
              "flight_time_s", "shots", "detected_shots", "detection_threshold_db"}
 
 
@@ -177,6 +177,7 @@ def test_metrics_agree_with_numpy_on_the_whole_file(altitude_study):
         snr = res["snr_db"].values.ravel()[surface]
         pw = power_dbm(res["received_power"].values.ravel()[surface])
         assert metrics["median_snr_db"] == np.median(snr)
+        assert metrics["snr_p01_db"] == np.percentile(snr, 1)
         assert metrics["snr_p10_db"] == np.percentile(snr, 10)
         assert metrics["snr_p90_db"] == np.percentile(snr, 90)
         assert metrics["median_received_power_dbm"] == np.median(pw)
@@ -211,6 +212,7 @@ def test_streamed_quantiles_equal_in_memory_ones(tmp_path):
     snr = ds["snr_db"].values.ravel()[det != 2]
     assert streamed["median_snr_db"] == np.median(snr)
     assert streamed["snr_p10_db"] == np.percentile(snr, 10)
+    assert streamed["snr_p01_db"] == np.percentile(snr, 1)
     assert streamed["snr_p90_db"] == np.percentile(snr, 90)
     assert streamed["shots"] == det.size == 2 * 60
 

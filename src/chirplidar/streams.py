@@ -73,6 +73,9 @@ STREAMS: dict[str, Stream] = {
     "effect.doppler": Stream(1002, "Doppler (draws nothing today)"),
     "effect.coupling": Stream(1003, "fiber coupling (draws nothing today)"),
     "effect.turbulence": Stream(1004, "turbulence phase screens"),
+    # Children of the same generator for the [receiver]'s focal-plane field (channel.receiver).
+    "effect.receiver_speckle": Stream(1005, "the receiver's pupil speckle fields"),
+    "effect.receiver_turbulence": Stream(1006, "the receiver's pupil phase screens"),
 }
 
 

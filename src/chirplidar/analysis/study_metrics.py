@@ -6,7 +6,8 @@ results file chunk by chunk (:func:`point_metrics`).
 ==============================  =====  ===================================================
 ``detection_probability``       1      detected / surface shots
 ``median_snr_db``               dB     median of ``snr_db`` over the surface shots
-``snr_p10_db``, ``snr_p90_db``  dB     10th and 90th percentiles of the same (the fades)
+``snr_p01_db``, ``snr_p10_db``  dB     1st and 10th percentiles of the same (fade depth)
+``snr_p90_db``                  dB     90th percentile of the same
 ``median_received_power_dbm``   dBm    median of ``received_power`` in dBm (``units.power_dbm``)
 ``range_rms_m``                 m      sqrt(mean(range_error^2)) over the detected shots;
                                        NaN with none
@@ -28,7 +29,7 @@ A surface shot with no signal (zero received power; its ``snr_db`` is NaN in the
 "no value" since 10 log10(0) is not stored) counts as -inf dB in the SNR and power statistics, so
 it pulls a median or percentile down instead of being dropped; a quantile that falls on (or
 interpolates with) such a shot is -inf. No NaN, no warning. Quantiles are numpy's
-(``np.percentile``, ``method="linear"``, for the 10th and 90th percentiles; ``np.median``, the
+(``np.percentile``, ``method="linear"``, for the 1st, 10th and 90th percentiles; ``np.median``, the
 middle value or the mean of the middle two, for the medians), computed exactly: while the
 surface shots' SNR and power fit in the memory budget (one results chunk, as
 :func:`~chirplidar.mission.summary.summary_of_chunks` keeps) they are kept and the order
@@ -57,6 +58,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "detection_probability": ("1", "detected shot-beams / shot-beams with a surface in the beam"),
     "median_snr_db": ("dB", ("median SNR in the RBW over the shot-beams with a surface in "
                              "the beam (zero signal counts as -inf dB)")),
+    "snr_p01_db": ("dB", ("1st percentile of the SNR over the shot-beams with a surface in "
+                          "the beam (deep fades)")),
     "snr_p10_db": ("dB", ("10th percentile of the SNR over the shot-beams with a surface in "
                           "the beam (fades)")),
     "snr_p90_db": ("dB", ("90th percentile of the SNR over the shot-beams with a surface in "
@@ -154,7 +157,7 @@ def _lerp(a: float, b: float, g: float, *, median: bool = False) -> float:
     return quantile_between(a, b, g)
 
 
-_QUANTILES = {"snr_p10_db": 0.10, "median_snr_db": 0.50, "snr_p90_db": 0.90}
+_QUANTILES = {"snr_p01_db": 0.01, "snr_p10_db": 0.10, "median_snr_db": 0.50, "snr_p90_db": 0.90}
 
 
 class _PointPass:

@@ -137,6 +137,7 @@ def format_study(ds: xr.Dataset) -> str:
     keys = [str(ds[d].attrs.get("study_key", d)) for d in dims]
     cols = [("P_det", "%", "detection_probability", 100.0, 1),
             ("SNR p50", "dB", "median_snr_db", 1.0, 1),
+            ("p01", "dB", "snr_p01_db", 1.0, 1),
             ("p10", "dB", "snr_p10_db", 1.0, 1),
             ("p90", "dB", "snr_p90_db", 1.0, 1),
             ("Psig p50", "dBm", "median_received_power_dbm", 1.0, 1),

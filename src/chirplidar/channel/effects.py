@@ -104,10 +104,19 @@ def turbulence_d_over_r0(config) -> float:
     one, constant Cn^2 (atm.Cn2) over the one-way distance (atm.dst)."""
     from ..atmosphere import fried_parameter
 
-    wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
     r0 = fried_parameter(config.channel.cn2_m_minus_2_3, config.wavelength_m,
-                         config.channel.distance_m, wave=wave)
+                         config.channel.distance_m,
+                         wave=return_wave(config, config.effects.enabled))
     return config.channel.telescope_diameter_m / r0
+
+
+def return_wave(config, enabled) -> str:
+    """The return's wave for turbulence: spherical from a diffuse target (the ``coupling``
+    effect's target kind; with a ``[receiver]``, a target with ``speckle`` among the ``enabled``
+    effects), plane from a specular one."""
+    if config.receiver is not None:
+        return "spherical" if "speckle" in enabled else "plane"
+    return "spherical" if config.effects.coupling.target == "diffuse" else "plane"
 
 
 def _coupling_beta(config) -> float:
@@ -180,9 +189,16 @@ def effect_rng(rng: np.random.Generator, name: str) -> np.random.Generator:
     return child_stream(rng, f"effect.{name}")
 
 
+#: Effects a ``[receiver]`` computes from its focal-plane field instead (channel.receiver).
+RECEIVER_EFFECTS = ("speckle", "coupling", "turbulence")
+
+
 def pipeline(config) -> list[Effect]:
-    """The enabled effects, in the registry's order (so the order in the file does not matter)."""
-    return [EFFECTS[name] for name in EFFECTS if name in config.effects.enabled]
+    """The enabled effects, in the registry's order (so the order in the file does not matter);
+    with a ``[receiver]``, without those its focal-plane field holds (:data:`RECEIVER_EFFECTS`)."""
+    skip = RECEIVER_EFFECTS if config.receiver is not None else ()
+    return [EFFECTS[name] for name in EFFECTS
+            if name in config.effects.enabled and name not in skip]
 
 
 def channel_returns(config, batch: int, rng: np.random.Generator) -> ShotReturns:
@@ -191,4 +207,8 @@ def channel_returns(config, batch: int, rng: np.random.Generator) -> ShotReturns
     for effect in pipeline(config):
         if effect.apply is not None:
             returns = effect.apply(config, returns, effect_rng(rng, effect.name))
+    if config.receiver is not None:
+        from .receiver import receiver_returns
+
+        returns = receiver_returns(config, returns, rng)
     return returns

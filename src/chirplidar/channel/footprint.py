@@ -34,7 +34,7 @@ from ..target import (
     specular_return_fraction,
 )
 from ..units import db_to_ratio
-from .effects import channel_returns
+from .effects import channel_returns, return_wave
 from .lab import lab_budget
 
 
@@ -91,8 +91,10 @@ def effect_returns(config, scene, geom, seq, exclude=("doppler",)):
     """(n, b) power factor and (n, b) carrier phase [rad] (the speckle field's phase) of the
     enabled channel effects, each beam on its own streams."""
     names = [e for e in scene.effects if e not in exclude and e != "phase_noise"]
+    if config.receiver is not None:  # the receiver's focal-plane field is the coupling
+        names = [e for e in names if e != "coupling"]
     n, b = geom.range_true_m.shape
-    if not names or n == 0:
+    if (not names and config.receiver is None) or n == 0:
         return np.ones((n, b)), np.zeros((n, b))
     cfg = effects_config(config, scene, geom, names)
     power, phase = np.empty((n, b)), np.empty((n, b))
@@ -123,7 +125,7 @@ def equivalent_cn2(config, scene, geom, r_med: float) -> float:
     z_g = float(np.median(geom.hit_xyz_m[..., 2][hit]))
     z_p = float(np.median(geom.platform_xyh[:, 2]))
     zen = float(np.median(geom.off_nadir_rad[hit]))
-    wave = "spherical" if config.effects.coupling.target == "diffuse" else "plane"
+    wave = return_wave(config, scene.effects)
     lam = config.wavelength_m
     r0 = float(scene.fried_parameter_m(lam, z_g, z_p, zen, wave=wave))
     if not np.isfinite(r0):
@@ -140,9 +142,10 @@ def subray_speckle_fields(config, scene, geom, seq):
     single-mode receiver, a circular complex Gaussian; Goodman 2007 Ch. 3), each (beam, sub-ray)
     on its own stream over the chunk's shots in time order (so ``shift_per_shot_m`` correlates
     successive shots of the same sub-ray, and the footprint's field keeps the effect's shot-to-shot
-    correlation). The footprint field sum_k sqrt(w_k) z_k has mean power sum_k w_k.
+    correlation). The footprint field sum_k sqrt(w_k) z_k has mean power sum_k w_k. None with a
+    ``[receiver]`` too: its pupil field holds the footprint's speckle.
     """
-    if "speckle" not in scene.effects:
+    if "speckle" not in scene.effects or config.receiver is not None:
         return None
     n, b, k = geom.sub_range_m.shape
     z = np.empty((n, b, k), complex)

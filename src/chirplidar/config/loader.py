@@ -124,7 +124,8 @@ PLATFORM_SECTIONS = frozenset({"platform.uav", "platform.aircraft", "platform.or
 
 #: The sections that describe the instrument (what ``instrument = "file.toml"`` and
 #: ``--instrument`` bring in); the rest of a mission says where and when it flies.
-INSTRUMENT_SECTIONS = frozenset((*CHIRPED_SECTIONS, *PULSED_SECTIONS, "channel", "apd", "effects"))
+INSTRUMENT_SECTIONS = frozenset((*CHIRPED_SECTIONS, *PULSED_SECTIONS, "channel", "apd", "effects",
+                                 "receiver"))
 #: Survey keys of the chirped receivers (their range gate and LO offsets), which a pulsed
 #: instrument flown with ``--instrument`` drops: its digitizer's record is its window.
 CHIRPED_SURVEY_KEYS = ("survey.range_window_m", "survey.doppler_compensation")

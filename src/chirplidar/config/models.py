@@ -16,6 +16,7 @@ from .models_effects import Effects
 from .models_instrument import (APD, PIN, Balanced, Channel, Heterodyne, Laser, Modulator,
                                 Processing, Simulation, Sweep, System, Transmitter, Waveform)
 from .models_pulsed import Background, Digitizer, PhotonCounting, Pulse, PulseRanging, PulseReceiver
+from .models_receiver import Receiver
 from .models_survey import AttitudeConfig, Beams, Platform, SceneRef, SurveyRun
 
 #: A chirp's frequency ramp must span at least this many samples to be a chirp at all.
@@ -53,6 +54,7 @@ class MissionConfig(StrictModel):
     balanced: Balanced | None = None
     pin: PIN | None = None
     heterodyne: Heterodyne | None = None
+    receiver: Receiver | None = None
     pulse: Pulse | None = None
     pulse_receiver: PulseReceiver | None = None
     photon_counting: PhotonCounting | None = None
@@ -89,6 +91,9 @@ class MissionConfig(StrictModel):
             detector = rx.get("detector") if isinstance(rx, dict) else None
             if detector in ("apd", "photon_counting") and detector not in data:
                 missing.append(detector)
+            if "receiver" in data:
+                raise ValueError("[receiver] chooses a coherent receiver's architecture; a "
+                                 "pulsed instrument ([pulse]) detects directly: remove [receiver]")
         else:
             stray = [s for s in PULSED_SECTIONS if s in data]
             if stray:
@@ -134,6 +139,52 @@ class MissionConfig(StrictModel):
         if sv.start_s is not None or sv.stop_s is not None:
             raise ValueError("give either a campaign window (survey.start_utc, stop_utc) or a "
                              "span (survey.start_s, stop_s), not both")
+        return self
+
+    @model_validator(mode="after")
+    def _receiver(self):
+        en = self.effects.enabled
+        if "turbulence" in en and "coupling" not in en and self.receiver is None:
+            raise ValueError("effects 'turbulence' acts on the receiver's coupling: enable "
+                             "'coupling' (the fiber's closed form) or give a [receiver]")
+        rx = self.receiver
+        if rx is None:
+            return self
+        sysc = self.system
+        if sysc.receiver != "coherent" or sysc.coherent_mode == "heterodyne":
+            raise ValueError(
+                "[receiver] sets the self-chirped coherent receiver's architecture: it needs "
+                "system.receiver = 'coherent' with coherent_mode 'homodyne' or 'phase_diversity'")
+        if rx.architecture == "fpa" and sysc.coherent_mode != "phase_diversity":
+            raise ValueError(
+                "receiver.architecture = 'fpa' combines complex pixel records in its DSP: set "
+                "system.coherent_mode = 'phase_diversity' (an I/Q hybrid per pixel, Appendix C)")
+        if not self.channel.free_space:
+            raise ValueError("[receiver] needs channel.free_space = on (atm.state): the bench's "
+                             "fiber channel has no telescope or focal plane")
+        if "coupling" in en:
+            raise ValueError("[receiver] computes the coupling from the focal-plane field: "
+                             "remove 'coupling' from effects.enabled (its closed form is the "
+                             "fiber receiver's mean)")
+        sp = self.effects.speckle
+        if "speckle" in en and (sp.cells != 1 or sp.shift_per_shot_m is not None):
+            raise ValueError("with [receiver], speckle is drawn across the pupil from the "
+                             "footprint: effects.speckle.cells must be 1 and shift_per_shot_m "
+                             "unset (the receiver sets how many cells it integrates)")
+        if rx.architecture == "fpa":
+            from ..optics import beam_radius_m
+            from ..optics.focal_plane import return_spot_radius_m
+
+            ch = self.channel
+            w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
+            spot = return_spot_radius_m(rx.focal_length_m, self.wavelength_m,
+                                       ch.telescope_diameter_m, float(w), ch.distance_m)
+            if rx.pixel_pitch_m > 2.0 * spot:
+                raise ValueError(
+                    f"receiver.pixel_pitch_m = {rx.pixel_pitch_m:.3g} m is larger than the "
+                    f"focal spot's field ({2 * spot:.3g} m across at channel.distance_m): one "
+                    "pixel would hold the whole return; use a finer pitch or "
+                    "architecture = 'large_detector'")
         return self
 
     @property

@@ -109,7 +109,4 @@ class Effects(StrictModel):
         for name in self.enabled:
             if name in type(self).model_fields and getattr(self, name) is None:
                 raise ValueError(f"effects.enabled includes '{name}' but [effects.{name}] is missing")
-        if "turbulence" in self.enabled and "coupling" not in self.enabled:
-            raise ValueError("effects 'turbulence' degrades the fiber coupling: enable 'coupling' "
-                             "too (it holds the telescope and fiber)")
         return self

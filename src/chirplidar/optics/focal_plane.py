@@ -33,6 +33,7 @@ from scipy.special import erf, sici
 from .._checks import generator
 from ._checks import finite_array, grid_size, obstruction_ratio, positive, square_field
 from .coupling import fiber_mode_pupil
+from .diffraction import focal_spot_diameter_m
 from .pupil import PupilGrid
 
 _ALIAS_RADII = 10.0  # wrap-around of a Gaussian correlation at >= 10 rho: exp(-50), negligible
@@ -62,6 +63,24 @@ def speckle_coherence_radius_m(wavelength_m: float, range_m: float, footprint_ra
     r = positive("range_m", range_m)
     w = positive("footprint_radius_m", footprint_radius_m)
     return lam * r / (np.pi * w)
+
+
+def return_spot_radius_m(
+    focal_length_m: float,
+    wavelength_m: float,
+    aperture_m: float,
+    footprint_radius_m: float,
+    range_m: float,
+) -> float:
+    """Radius of the return's spot in the focal plane (m): the footprint's image f w / R and the
+    aperture's Airy radius 1.22 lambda f / D (``diffraction.focal_spot_diameter_m``, thesis eq.
+    2.6.19) added in quadrature: the speckle grains' envelope, the footprint's image blurred by
+    the aperture."""
+    f = positive("focal_length_m", focal_length_m)
+    w = positive("footprint_radius_m", footprint_radius_m)
+    r = positive("range_m", range_m)
+    airy = focal_spot_diameter_m(aperture_m, wavelength_m, f)
+    return float(np.hypot(f * w / r, airy))
 
 
 def _fields_from_amplitude(amp, n: int, batch: int, rng, phase_screen_rad, weights):

@@ -59,7 +59,7 @@ from .common import (
     optimal_phase,
     peak_search_max_hz,
 )
-from .model import Instrument, Measurements, Returns
+from .model import Instrument, Measurements, Returns, UnsupportedError
 from .records import analyze_block, concatenate_blocks
 from .registry import BASEBAND_SUPPORTS
 
@@ -134,6 +134,25 @@ def _simulate_baseband(config, returns, rng, keep_spectrum) -> Measurements:
     )
 
 
+def records_per_shot(config: Instrument) -> tuple[int, str]:
+    """Records per shot and how their spectra combine: the ``processing.averages`` chirps, and
+    an FPA combined incoherently sums its N^2 pixels' power spectra too. Each pixel is then a
+    record at the combined SNR sum_k S_k / sum_k N_k (the channel's gain): the sum of K
+    spectra sum_k |c_k s + n_k|^2 is noncentral chi-square with 2K degrees of freedom per bin,
+    whose law depends on the total noncentrality sum_k |c_k|^2 / N only (pixels of equal noise
+    N; an LO of unequal shares makes it an approximation)."""
+    proc, rx = config.processing, config.receiver
+    if rx is None or rx.architecture != "fpa" or rx.combining != "incoherent":
+        return proc.averages, proc.averaging
+    if proc.averaging == "coherent" and proc.averages > 1:
+        raise UnsupportedError(
+            "the baseband tier does not model an FPA combined incoherently after coherent "
+            "averaging over chirps (processing.averaging = 'coherent', averages > 1): set "
+            "processing.averaging = 'power', or fly --tier link"
+        )
+    return proc.averages * rx.pixel_count, "power"
+
+
 class _BasebandRun:
     """One batch through the baseband chain: the batch's set-up, then :meth:`block` by block
     (each block simulated and analysed before the next: memory is bounded by the block)."""
@@ -146,7 +165,7 @@ class _BasebandRun:
         self.bud = bud = make_budget(config, returns)
         b = config.balanced
         self.fs, self.n = baseband_grid(config, float(np.max(np.abs(returns.doppler_hz))))
-        self.k_avg = config.processing.averages
+        self.k_avg, self.averaging = records_per_shot(config)
         self.top = band_top_hz_or_nyquist(config, self.fs)
         self.t = np.arange(self.n) / self.fs
         self.gate = bud.train.record_gate(self.t, config.simulation.duration_s)
@@ -227,7 +246,7 @@ class _BasebandRun:
             ]
         k_avg, n = self.k_avg, self.n
         per_record = k_avg if (self.returns.carrier_phase == "random" or self.lw > 0) else 1
-        self.coherent_avg = proc.averaging == "coherent"
+        self.coherent_avg = self.averaging == "coherent"
         # Records per shot in the block's largest arrays: K signals, or K noisy records to
         # power-average.
         rows = k_avg if (per_record > 1 or not self.coherent_avg) else 1
@@ -263,6 +282,7 @@ class _BasebandRun:
             transfer=single_pole(b.bandwidth_hz),
             search_max_hz=min(peak_search_max_hz(config, bud), self.top),
             keep_spectrum=keep_spectrum,
+            averaging=self.averaging,
         )
         # The detector noise (both arms, arm 1, arm 2) at the operating point the first block
         # sets (_BlockCurrents).

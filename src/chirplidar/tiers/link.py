@@ -27,6 +27,7 @@ from scipy.special import j0
 from ..processing.spectrum import PeakResult
 from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, pin_noise
+from ..receiver.fpa import estimated_mrc_factor
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from ..units import SPEED_OF_LIGHT_M_S
 from .baseband_product import field_peak
@@ -233,6 +234,7 @@ def simulate_link(
     # Speckle (or any effect on the received power) scales each shot's beat.
     tone = tone * returns.power_factor
     snr = snr * returns.power_factor
+    snr = snr * estimated_gain_factor(config, snr, proc.rbw_hz, t_ov)
     out_scale = noise.gain_ohm**2 / noise.load_ohm * h2
     # Range scatter: Cramer-Rao bound for the frequency of a tone of duration T_ov (Rife & Boorstyn).
     sigma_f = crb_sigma_f_hz(snr, proc.rbw_hz, t_ov)
@@ -265,6 +267,18 @@ def simulate_link(
         power_factor=returns.power_factor,
         nyquist_hz=nyquist,
     )
+
+
+def estimated_gain_factor(config: Instrument, snr, rbw_hz: float, duration_s):
+    """The SNR factor of an FPA whose DSP estimates each pixel's gain from its own beat
+    (``receiver.combining = "mrc_estimated"``): ``fpa.estimated_mrc_factor`` of the record's
+    energy SNR snr x RBW x T (the amplitudes are read over the tone's duration T), the
+    channel having applied the known-gain sum; 1 for every other receiver."""
+    rx = config.receiver
+    if rx is None or rx.architecture != "fpa" or rx.combining != "mrc_estimated":
+        return 1.0
+    energy = np.asarray(snr, float) * rbw_hz * np.asarray(duration_s, float)
+    return estimated_mrc_factor(energy, rx.pixel_count)
 
 
 def _phase_power(returns: Returns, bud, mode: str):

@@ -62,9 +62,11 @@ class Instrument:
     detectors) and the processing (``processing``, with the reference-delay rule in ``system``).
     A pulsed instrument (thesis Tables 2.1-2.2) has ``pulse``, ``pulse_receiver``, ``digitizer``,
     ``pulse_ranging`` and, by its detector, ``apd`` or ``photon_counting``; its other sections
-    are None. ``fiber`` is the fiber coupling's acceptance check, when the receiver couples into
-    a fiber (the ``coupling`` effect); ``telescope_diameter_m`` the receive aperture. Build it
-    with ``chirplidar.config.instrument_from_config``.
+    are None. ``receiver`` is the coherent receiver's architecture (the ``[receiver]`` section:
+    fiber, large detector or focal-plane array; None for the fiber of the closed-form
+    ``coupling`` effect). ``fiber`` is the fiber coupling's acceptance check, when the receiver
+    couples into a fiber; ``telescope_diameter_m`` the receive aperture. Build it with
+    ``chirplidar.config.instrument_from_config``.
     """
 
     telescope_diameter_m: float
@@ -84,6 +86,7 @@ class Instrument:
     photon_counting: Any = None
     digitizer: Any = None
     pulse_ranging: Any = None
+    receiver: Any = None
     fiber: FiberAcceptance | None = None
 
     @property
@@ -300,7 +303,10 @@ class Supports:
     ``recovery_receivers``: the receivers a Doppler recovery works with, where it does not work
     with all (squaring needs the self-chirped homodyne beat, thesis Appendix D). ``hint``: where
     else to go, by key. ``kinds``: the instruments it flies, ``"chirped"`` and/or ``"pulsed"``
-    (a pulsed instrument is checked for its detector only)."""
+    (a pulsed instrument is checked for its detector only). ``architectures``: the
+    ``receiver.architecture`` values it models (an instrument without ``[receiver]`` is the
+    closed-form fiber, which every chirped tier models); ``combining``: an FPA's combining
+    rules it models."""
 
     receivers: frozenset[str]
     modulations: frozenset[str]
@@ -310,6 +316,8 @@ class Supports:
     recovery_receivers: Mapping[str, frozenset[str]] = field(default_factory=dict)
     hint: Mapping[str, str] = field(default_factory=dict)
     kinds: frozenset[str] = frozenset({"chirped"})
+    architectures: frozenset[str] = frozenset()
+    combining: frozenset[str] = frozenset()
 
     def check(self, tier: str, instrument: Instrument, returns: Returns | None = None) -> None:
         """Raise :class:`UnsupportedError` naming the setting this tier does not model."""
@@ -366,10 +374,29 @@ class Supports:
                 f"{proc.doppler_recovery} recovery with the receivers " + ", ".join(sorted(needs)),
                 "recovery_receiver",
             )
+        self._check_architecture(tier, instrument)
         if returns is not None and returns.echoes is not None and not self.echoes:
             raise UnsupportedError(
                 f"the {tier} tier takes no footprint echoes (a survey "
                 "broadens its line in closed form)"
+            )
+
+    def _check_architecture(self, tier: str, instrument: Instrument) -> None:
+        rx = instrument.receiver
+        if rx is None:
+            return
+        hint = self.hint.get("architecture", "")
+        if rx.architecture not in self.architectures:
+            models = ", ".join(sorted(self.architectures)) or "no receiver architecture"
+            raise UnsupportedError(
+                f"the {tier} tier does not model receiver.architecture = {rx.architecture!r}: "
+                f"it models {models}" + (f"; {hint}" if hint else "")
+            )
+        if rx.architecture == "fpa" and rx.combining not in self.combining:
+            raise UnsupportedError(
+                f"the {tier} tier does not model receiver.combining = {rx.combining!r}: it "
+                f"models {', '.join(sorted(self.combining))}"
+                + (f"; {self.hint['combining']}" if "combining" in self.hint else "")
             )
 
     def _check_pulsed(self, tier: str, instrument: Instrument) -> None:

@@ -127,6 +127,7 @@ def analyze_block(
     keep_spectrum: bool,
     pn_reference=None,
     spectrum_analyzer=None,
+    averaging: str | None = None,
 ) -> tuple[PeakResult, dict]:
     """The receiver's processing of a block of shots, shared by the rf and baseband tiers:
     optional squaring (Appendix D), PN correlation or spectrum peak analysis, the phase-diversity
@@ -135,8 +136,11 @@ def analyze_block(
     ``records``: {"main": (batch, averages, N)} volts, or {"arm1", "arm2"} for phase diversity.
     ``spectrum_analyzer`` (optional) replaces :func:`analyze_records` for "main" records with the
     same keyword interface (the baseband tier's direct draw of power-averaged spectra).
+    ``averaging`` (optional) replaces ``processing.averaging`` (the baseband tier's FPA pixels
+    summed in power).
     """
     proc, sysc = config.processing, config.system
+    averaging = averaging or proc.averaging
     extra: dict[str, np.ndarray] = {}
     analyze_main = spectrum_analyzer or analyze_records
     kw = dict(
@@ -160,12 +164,12 @@ def analyze_block(
             records["main"],
             fs_hz,
             load_ohm,
-            averaging=proc.averaging,
+            averaging=averaging,
             keep_spectrum=keep_spectrum,
             **kw,
         )
     else:
-        result = _analyze_arms(records, fs_hz, load_ohm, proc.averaging, keep_spectrum, kw, extra)
+        result = _analyze_arms(records, fs_hz, load_ohm, averaging, keep_spectrum, kw, extra)
     if squaring:
         # The line found is 2 f_R; its power and SNR are those of the squared record.
         result = dataclasses.replace(

@@ -23,9 +23,11 @@ RF_SUPPORTS = Supports(
     echoes=True,
     spectrum=True,
     recovery_receivers={"squaring": frozenset({"homodyne"})},
+    architectures=frozenset({"fiber", "large_detector"}),
     hint={
         "kind": _CHIRPED_TIER,
         "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)",
+        "architecture": "an FPA's N x N pixel records fly with --tier baseband or link",
     },
 )
 BASEBAND_SUPPORTS = Supports(
@@ -34,8 +36,11 @@ BASEBAND_SUPPORTS = Supports(
     doppler_recovery=frozenset({"none"}),
     echoes=True,
     spectrum=True,
+    architectures=frozenset({"fiber", "large_detector", "fpa"}),
+    combining=frozenset({"incoherent", "mrc", "selection"}),
     hint={
         "kind": _CHIRPED_TIER,
+        "combining": "gains estimated from the data (mrc_estimated) fly with --tier link",
         "modulation": "use --tier rf",
         "receiver": "use --tier rf or link (direct and heterodyne detection)",
         "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
@@ -48,6 +53,8 @@ LINK_SUPPORTS = Supports(
     doppler_recovery=frozenset({"none"}),
     echoes=False,
     spectrum=False,
+    architectures=frozenset({"fiber", "large_detector", "fpa"}),
+    combining=frozenset({"incoherent", "mrc", "mrc_estimated", "selection"}),
     hint={
         "kind": _CHIRPED_TIER,
         "modulation": "use --tier rf",
