@@ -16,7 +16,7 @@ from chirplidar.channel.receiver import receiver_optics, shot_pixels
 from chirplidar.config import load_mission
 from chirplidar.config.instrument import instrument_from_config
 from chirplidar.config.loader import config_with
-from chirplidar.optics import coupling_beta, coupling_efficiency
+from chirplidar.optics import coupling_beta, coupling_efficiency, monostatic_diffuse_coupling
 from chirplidar.optics.focal_plane import mean_mixing_efficiency_focal
 from chirplidar.tiers.registry import TIERS
 from conftest import ROOT
@@ -29,17 +29,24 @@ D_TEL, F_TEL = 0.05, 0.5
 CHANNEL = {"channel.distance_m": 50.0, "channel.telescope_diameter_m": D_TEL,
            "channel.beam_radius_m": 5e-3, "channel.divergence_half_angle_rad": 0.2e-3,
            "processing.averages": 1}
-COMMON = {"receiver.focal_length_m": F_TEL, "receiver.obstruction_ratio": 0.0}
+COMMON = {"receiver.focal_length_m": F_TEL, "receiver.obstruction_ratio": 0.0,
+          "receiver.footprint": "beam"}
 # Fiber mode radius at the plane-wave optimum beta = pi D w0 / (2 lambda f) = 1.121 (Ruilier).
 W0_OPT = 1.1209 * 2 * LAMBDA * F_TEL / (np.pi * D_TEL)
-FIBER = {"receiver.architecture": "fiber", "receiver.mode_field_radius_m": W0_OPT,
-         "receiver.fiber_numerical_aperture": 0.14}
+FIBER = {"receiver.architecture": "fiber", "receiver.fiber.mode_field_radius_m": W0_OPT,
+         "receiver.fiber.numerical_aperture": 0.14}
 LAMBDA_F_D = LAMBDA * F_TEL / D_TEL
 FPA = {"receiver.architecture": "fpa", "system.coherent_mode": "phase_diversity",
-       "receiver.lo_profile": "flat_top", "receiver.lo_radius_m": 12 * LAMBDA_F_D,
-       "receiver.pixels": 4, "receiver.pixel_pitch_m": 4 * LAMBDA_F_D, "receiver.fill_factor": 1.0,
-       "receiver.pixel_noise_a_per_rthz": 2e-12, "receiver.pixel_dark_current_a": 1e-9,
-       "receiver.combining": "mrc"}
+       "receiver.fpa.lo_profile": "flat_top", "receiver.fpa.lo_radius_m": 12 * LAMBDA_F_D,
+       "receiver.fpa.pixels": 4, "receiver.fpa.pitch_m": 4 * LAMBDA_F_D,
+       "receiver.fpa.fill_factor": 1.0, "receiver.fpa.noise_a_per_rthz": 2e-12,
+       "receiver.fpa.dark_current_a": 1e-9, "receiver.fpa.combining": "mrc"}
+
+
+def _large(side, lo_radius):
+    return {"receiver.architecture": "large_detector", "receiver.large_detector.side_m": side,
+            "receiver.large_detector.lo_profile": "flat_top",
+            "receiver.large_detector.lo_radius_m": lo_radius}
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +73,21 @@ def test_fiber_plane_wave_coupling_is_ruiliers(field):
     assert coupling_efficiency(1.1209, 0.0) == pytest.approx(0.8145, abs=1e-4)
 
 
+def test_monostatic_fiber_mean_is_winzer_and_leeb(field):
+    """The field trial's monostatic fiber telescope (the same fiber transmits): its mean
+    coupling of the diffuse target's speckle through the focal-plane field is Winzer & Leeb's
+    (1998) mean, 0.42 at the optimum (optics.monostatic_diffuse_coupling). 4000 shots of an
+    exponential power: standard error 1.6 %; tolerance 3 SE + 1 % (the pupil grid's quadrature)."""
+    n = 4000
+    cfg = _config(field, FIBER, {"receiver.footprint": "monostatic",
+                                 "receiver.transmit_mode_radius_m": W0_OPT})
+    g = lab_returns(cfg, n, np.random.default_rng(9)).power_factor
+    beta = coupling_beta(D_TEL, F_TEL, W0_OPT, LAMBDA)
+    expected = monostatic_diffuse_coupling(beta, 0.0)
+    assert expected == pytest.approx(0.42, abs=0.01)
+    assert g.mean() == pytest.approx(expected, abs=3 * g.std() / np.sqrt(n) + 0.01 * expected)
+
+
 def test_fiber_in_speckle_fades_with_contrast_one(field):
     """The fiber couples one mode of a circular complex Gaussian field: its power is
     exponential (Goodman 2007 Ch. 3), contrast std / mean = 1. 3000 shots: the contrast's
@@ -84,9 +106,7 @@ def test_large_detector_mixing_follows_the_antenna_theorem(field, side_lfd):
     sampled 8 times per lambda f / D (a detector spanning few samples reads a field constant
     over it: eta -> 1)."""
     side = side_lfd * LAMBDA_F_D
-    cfg = _config(field, {"receiver.architecture": "large_detector",
-                          "receiver.lo_profile": "flat_top", "receiver.lo_radius_m": side,
-                          "receiver.detector_side_m": side, "receiver.focal_sampling": 8.0})
+    cfg = _config(field, _large(side, side), {"receiver.focal_sampling": 8.0})
     opt = receiver_optics(cfg)
     px = shot_pixels(cfg, opt, 400, np.random.default_rng(2))
     measured = np.mean(np.abs(px.beat_w) ** 2) / np.mean(px.signal_power_w * px.lo_power_w)
@@ -99,9 +119,7 @@ def test_fpa_pixels_tile_the_large_detector(field):
     detector of the same area and LO (the same fields: the same seed)."""
     side = 16 * LAMBDA_F_D
     arr = _config(field, FPA)
-    big = _config(field, {"receiver.architecture": "large_detector",
-                          "receiver.lo_profile": "flat_top", "receiver.lo_radius_m": 12 * LAMBDA_F_D,
-                          "receiver.detector_side_m": side})
+    big = _config(field, _large(side, 12 * LAMBDA_F_D))
     pa, pb = (shot_pixels(c, receiver_optics(c), 20, np.random.default_rng(3)) for c in (arr, big))
     summed = pa.beat_w.reshape(20, -1).sum(axis=1)
     assert np.allclose(summed, pb.beat_w.reshape(20), rtol=1e-9, atol=1e-12 * np.abs(summed).max())
@@ -112,7 +130,7 @@ def test_fpa_combining_rules_order_as_theory_says(field):
     Brennan 1959); the FPA's mean gain beats the fiber's in speckle (more than one grain
     collected) and its fades are shallower (1 % quantile over the mean)."""
     rng = np.random.default_rng
-    g = {rule: lab_returns(_config(field, FPA, {"receiver.combining": rule}), 500,
+    g = {rule: lab_returns(_config(field, FPA, {"receiver.fpa.combining": rule}), 500,
                            rng(4)).power_factor for rule in ("mrc", "selection", "incoherent")}
     assert np.all(g["mrc"] >= g["selection"] * (1 - 1e-12))
     assert np.all(g["mrc"] >= g["incoherent"] * (1 - 1e-12))
@@ -129,7 +147,7 @@ def test_baseband_and_link_agree_on_the_fpa(field):
     tier models: its records are the combined record (maximal ratio, selection) or the pixels'
     spectra summed (incoherent)."""
     for rule in ("mrc", "selection", "incoherent"):
-        cfg = _config(field, FPA, {"receiver.combining": rule, "processing.highpass_hz": 2.5e6,
+        cfg = _config(field, FPA, {"receiver.fpa.combining": rule, "processing.highpass_hz": 2.5e6,
                                    "channel.extra_attenuation_db": -30.0,
                                    "channel.distance_m": 120.0})
         ret = lab_returns(cfg, 60, np.random.default_rng(5))
@@ -146,7 +164,7 @@ def test_estimated_gains_cost_snr_in_the_link_tier(field):
     SNR."""
     out = {}
     for rule in ("mrc", "mrc_estimated"):
-        cfg = _config(field, FPA, {"receiver.combining": rule})
+        cfg = _config(field, FPA, {"receiver.fpa.combining": rule})
         ret = lab_returns(cfg, 50, np.random.default_rng(7))
         out[rule] = TIERS["link"].simulate(instrument_from_config(cfg), ret,
                                            np.random.default_rng(8))["SNR"]
@@ -173,12 +191,14 @@ FPA_SETS = {**COMMON, **FPA}
 
 
 @pytest.mark.parametrize(("change", "needles"), [
-    ({"receiver.pixel_pitch_m": 0.01}, ("receiver.pixel_pitch_m", "focal spot")),
-    ({"receiver.pixels": 0}, ("receiver.pixels", "at least one pixel")),
-    ({"receiver.fill_factor": 0.0}, ("receiver.fill_factor",)),
-    ({"receiver.fill_factor": 1.5}, ("receiver.fill_factor",)),
+    ({"receiver.fpa.pitch_m": 0.01}, ("receiver.fpa.pitch_m", "focal spot")),
+    ({"receiver.fpa.pixels": 0}, ("receiver.fpa.pixels", "at least one pixel")),
+    ({"receiver.fpa.fill_factor": 0.0}, ("receiver.fpa.fill_factor",)),
+    ({"receiver.fpa.fill_factor": 1.5}, ("receiver.fpa.fill_factor",)),
+    ({"receiver.architecture": "fiber"}, ("[receiver.fiber]",)),
+    ({"receiver.footprint": "monostatic"}, ("receiver.transmit_mode_radius_m",)),
     ({"system.coherent_mode": "homodyne"}, ("phase_diversity",)),
-    ({"receiver.combining": "mrc_estimated", "survey.tier": None}, ("mrc_estimated",)),
+    ({"receiver.fpa.combining": "mrc_estimated", "survey.tier": None}, ("mrc_estimated",)),
 ])
 def test_bad_receivers_are_one_line(capsys, change, needles):
     """Each refusal of the issue, through the CLI: one line naming the key, no traceback."""

@@ -1,9 +1,12 @@
 """The receiver stage: each shot's field across the pupil, focused and mixed with the LO of the
 ``[receiver]`` architecture (fiber, large detector, focal-plane array; thesis Ch. 6).
 
-Per shot the pupil field is fully developed speckle of the footprint (``speckle`` enabled: the
-van Cittert-Zernike coherence radius rho = lambda R / (pi w) of the Gaussian footprint of radius
-w at range R, ``optics.focal_plane.speckle_pupil_fields``) or a plane wave (a smooth target),
+Per shot the pupil field is fully developed speckle of the footprint (``speckle`` enabled) or a
+plane wave (a smooth target). The footprint is the far field of the transmit fiber's mode through
+this telescope (``receiver.footprint = "monostatic"``, the field trial: Winzer & Leeb 1998,
+``optics.focal_plane.monostatic_speckle_pupil_fields``) or the channel's Gaussian beam
+(``"beam"``: the van Cittert-Zernike coherence radius rho = lambda R / (pi w) of the footprint
+of radius w at range R, ``optics.focal_plane.speckle_pupil_fields``),
 times a turbulence phase screen (``turbulence`` enabled: independent screens per shot, or one
 screen moving past the aperture for ``fading = "frozen_flow"``), through the obstructed aperture.
 It is normalised to the mean collected power (so the factor below keeps the speckle's power
@@ -32,12 +35,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..optics import beam_radius_m, pupil_grid
+from ..optics import beam_radius_m, coupling_beta, pupil_grid
 from ..optics.focal_plane import (
     fiber_mode_lo,
     flat_top_lo,
     focal_fields,
     gaussian_lo,
+    monostatic_speckle_pupil_fields,
     speckle_coherence_radius_m,
     speckle_pupil_fields,
 )
@@ -49,6 +53,7 @@ from ..units import ELEMENTARY_CHARGE_C, SPEED_OF_LIGHT_M_S
 
 _BLOCK_ELEMENTS = 1 << 22  # complex samples per block of shots (pupil + focal fields), 64 MiB
 _FIBER_WINDOW_W0 = 4.5  # the fiber's focal window half-width in mode radii (the overlap's >= 4)
+_DETAIL_SAMPLES = 4  # focal samples across a pixel's active side or the fiber's mode radius
 
 
 @dataclass(frozen=True)
@@ -59,7 +64,8 @@ class ReceiverOptics:
     n_pupil: int
     aperture_m: float
     obstruction: float
-    coherence_radius_m: float
+    coherence_radius_m: float | None  # the beam footprint's rho; None for monostatic
+    transmit_beta: float | None  # the monostatic transmit mode's beta (coupling_beta)
     u_m: np.ndarray
     lo: np.ndarray
     n_pixels: int
@@ -73,22 +79,26 @@ class ReceiverOptics:
         return self.shot_ratio * np.asarray(lo_share, float) + self.circuit_ratio
 
 
-def _reference_noise(config) -> tuple[float, float, float]:
-    """(N_ref, its LO shot-noise part, mean responsivity) of the configured balanced detector at
-    its operating point, the LO split by the receiver's coupler (A^2/Hz, A^2/Hz, A/W)."""
+def _reference_noise(config) -> tuple[float, float]:
+    """(N_ref, its LO shot-noise part) [A^2/Hz] of the configured coherent receiver at its
+    operating point, as the tiers read it: the balanced pair's difference current (homodyne),
+    or the two unbalanced arms of the 90-degree hybrid summed (phase diversity, thesis
+    Appendix C, whose spectra the tiers sum)."""
     nu = SPEED_OF_LIGHT_M_S / config.wavelength_m
     resp = responsivities(config, nu)
-    r1, r2 = resp["balanced_1"], resp["balanced_2"]
-    s = COUPLER_3DB if config.system.coherent_mode == "homodyne" else HYBRID_90
+    r = (resp["balanced_1"], resp["balanced_2"])
+    homodyne = config.system.coherent_mode == "homodyne"
+    s = COUPLER_3DB if homodyne else HYBRID_90
     loss = coupler_field_transmission(config) ** 2
     p = [loss * abs(s[k, 0]) ** 2 * config.balanced.lo_power_w for k in (0, 1)]
-    noise = balanced_noise(config, r1, r2, *p)
-    lo_shot = 2.0 * ELEMENTARY_CHARGE_C * (r1 * p[0] + r2 * p[1])
-    return noise.total, lo_shot, 0.5 * (r1 + r2)
+    lo_shot = 2.0 * ELEMENTARY_CHARGE_C * (r[0] * p[0] + r[1] * p[1])
+    if homodyne:
+        return balanced_noise(config, *r, *p).total, lo_shot
+    return sum(balanced_noise(config, *r, *p, arm=a).total for a in (0, 1)), lo_shot
 
 
 def coherence_radius_m(config) -> float:
-    """The footprint's speckle coherence radius in the pupil at ``channel.distance_m``."""
+    """The beam footprint's speckle coherence radius in the pupil at ``channel.distance_m``."""
     ch = config.channel
     w = float(beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m))
     return float(speckle_coherence_radius_m(config.wavelength_m, ch.distance_m, w))
@@ -97,43 +107,51 @@ def coherence_radius_m(config) -> float:
 def receiver_optics(config) -> ReceiverOptics:
     """The receiver geometry of ``config`` (its ``[receiver]`` and channel)."""
     rx, ch = config.receiver, config.channel
+    sub = rx.chosen
     d, lam, f = ch.telescope_diameter_m, config.wavelength_m, rx.focal_length_m
-    rho = coherence_radius_m(config)
-    du = lam * f / (d * rx.focal_sampling)
+    monostatic = rx.footprint == "monostatic"
+    rho = None if monostatic else coherence_radius_m(config)
+    beta = coupling_beta(d, f, rx.transmit_mode_radius_m, lam) if monostatic else None
     if rx.architecture == "fiber":
-        half, n_pix, fill = _FIBER_WINDOW_W0 * rx.mode_field_radius_m, 1, 1.0
+        half, n_pix, fill = _FIBER_WINDOW_W0 * sub.mode_field_radius_m, 1, 1.0
+        detail = sub.mode_field_radius_m
     elif rx.architecture == "large_detector":
-        half, n_pix, fill = 0.5 * rx.detector_side_m, 1, 1.0
+        half, n_pix, fill, detail = 0.5 * sub.side_m, 1, 1.0, sub.side_m
     else:
-        half, n_pix, fill = 0.5 * rx.pixels * rx.pixel_pitch_m, rx.pixels, rx.fill_factor
+        half, n_pix, fill = 0.5 * sub.pixels * sub.pitch_m, sub.pixels, sub.fill_factor
+        detail = np.sqrt(fill) * sub.pitch_m
+    # focal_sampling per lambda f / D, and at least _DETAIL_SAMPLES across the smallest
+    # detector feature (a pixel's active side, the fiber mode radius).
+    du = min(lam * f / (d * rx.focal_sampling), detail / _DETAIL_SAMPLES)
     m = int(np.ceil(half / du))
     u = (np.arange(2 * m + 1) - m) * du
     pitch = 2.0 * half / n_pix
     # The pupil samples resolve the speckle (3 per rho), the turbulence (2 per r0) and the
     # focal window (the focused field repeats every n lambda f / D).
-    need = [32, 3.0 * d / rho if "speckle" in config.effects.enabled else 0.0,
+    need = [32, 3.0 * d / rho if rho is not None and "speckle" in config.effects.enabled else 0.0,
             2.0 * (2 * m + 1) / rx.focal_sampling]
     if _turbulent(config):
         need.append(2.0 * _d_over_r0(config))
     n = int(rx.pupil_samples) if rx.pupil_samples is not None else int(np.ceil(max(need)))
-    total, lo_shot, _ = _reference_noise(config)
+    total, lo_shot = _reference_noise(config)
     if rx.architecture == "fpa":
-        circuit = rx.pixel_noise_a_per_rthz**2 + 2.0 * ELEMENTARY_CHARGE_C * rx.pixel_dark_current_a
+        circuit = sub.noise_a_per_rthz**2 + 2.0 * ELEMENTARY_CHARGE_C * sub.dark_current_a
     else:
         circuit = total - lo_shot
     return ReceiverOptics(
         n_pupil=n, aperture_m=d, obstruction=rx.obstruction_ratio, coherence_radius_m=rho,
-        u_m=u, lo=_lo_field(rx, u), n_pixels=n_pix, pitch_m=pitch, fill_factor=fill,
+        transmit_beta=beta, u_m=u, lo=_lo_field(rx, u), n_pixels=n_pix, pitch_m=pitch, fill_factor=fill,
         shot_ratio=lo_shot / total, circuit_ratio=circuit / total)
 
 
 def _lo_field(rx, u) -> np.ndarray:
     """The LO in the focal plane, normalised to unit power over the whole plane."""
+    sub = rx.chosen
     if rx.architecture == "fiber":
-        w0 = rx.mode_field_radius_m
+        w0 = sub.mode_field_radius_m
         return fiber_mode_lo(u, w0) / np.sqrt(0.5 * np.pi * w0 * w0)
-    r = rx.lo_radius_m
-    if rx.lo_profile == "gaussian":
+    r = sub.lo_radius_m
+    if sub.lo_profile == "gaussian":
         return gaussian_lo(u, r) / np.sqrt(0.5 * np.pi * r * r)
     return flat_top_lo(u, r) / np.sqrt(np.pi * r * r)
 
@@ -194,7 +212,10 @@ def _screens(config, opt: ReceiverOptics, batch: int, rng):
 def _pupil_fields(config, opt: ReceiverOptics, k: int, rng, screen) -> np.ndarray:
     """(k, n, n) aperture-weighted pupil fields, mean collected power 1 (W)."""
     grid = pupil_grid(opt.n_pupil, opt.obstruction)
-    if "speckle" in config.effects.enabled:
+    if "speckle" in config.effects.enabled and opt.transmit_beta is not None:
+        e = monostatic_speckle_pupil_fields(grid, opt.transmit_beta, rng, k,
+                                            phase_screen_rad=screen)
+    elif "speckle" in config.effects.enabled:
         e = speckle_pupil_fields(grid, opt.aperture_m, opt.coherence_radius_m, rng, k,
                                  phase_screen_rad=screen)
     else:

@@ -16,7 +16,7 @@ def instrument_from_config(config: MissionConfig) -> Instrument:
     if rx is not None and rx.architecture == "fiber":
         fiber = FiberAcceptance(telescope_diameter_m=config.channel.telescope_diameter_m,
                                 focal_length_m=rx.focal_length_m,
-                                numerical_aperture=rx.fiber_numerical_aperture)
+                                numerical_aperture=rx.fiber.numerical_aperture)
     elif "coupling" in config.effects.enabled:
         c = config.effects.coupling
         fiber = FiberAcceptance(telescope_diameter_m=config.channel.telescope_diameter_m,

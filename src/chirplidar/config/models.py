@@ -176,15 +176,18 @@ class MissionConfig(StrictModel):
             from ..optics.focal_plane import return_spot_radius_m
 
             ch = self.channel
-            w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
+            if rx.footprint == "monostatic":  # the transmit mode's far field: w / R = w0 / f
+                w = ch.distance_m * rx.transmit_mode_radius_m / rx.focal_length_m
+            else:
+                w = beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, ch.distance_m)
             spot = return_spot_radius_m(rx.focal_length_m, self.wavelength_m,
-                                       ch.telescope_diameter_m, float(w), ch.distance_m)
-            if rx.pixel_pitch_m > 2.0 * spot:
+                                        ch.telescope_diameter_m, float(w), ch.distance_m)
+            if rx.fpa.pitch_m > 2.0 * spot:
                 raise ValueError(
-                    f"receiver.pixel_pitch_m = {rx.pixel_pitch_m:.3g} m is larger than the "
+                    f"receiver.fpa.pitch_m = {rx.fpa.pitch_m:.3g} m is larger than the "
                     f"focal spot's field ({2 * spot:.3g} m across at channel.distance_m): one "
                     "pixel would hold the whole return; use a finer pitch or "
-                    "architecture = 'large_detector'")
+                    "receiver.architecture = 'large_detector'")
         return self
 
     @property
