@@ -58,14 +58,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .accuracy_pulsed import PULSE_ESTIMATORS, PULSED_FAMILIES, PULSED_SNR_DB
+from . import accuracy_receivers as ar
 
 MISSION_NAME = "thesis_ch5_bench.toml"
 DEFAULT_SNR_DB = (10.0, 20.0, 30.0)
 FAMILIES = ("sample_rate", "delay_method", "peak_method", "zero_pad", "baseband_rate", "precision",
-            "link", "sub_rays", "screen", *PULSED_FAMILIES)
+            "link", "sub_rays", "screen", *ar.RECEIVER_FAMILIES, *PULSED_FAMILIES)
 STUDIES = {"point target": ("sample_rate", "delay_method", "peak_method", "zero_pad",
                             "baseband_rate", "precision", "link"),
-           "footprint": ("sub_rays",), "turbulence": ("screen",), "pulsed": PULSED_FAMILIES}
+           "footprint": ("sub_rays",), "turbulence": ("screen",), "receivers": ar.RECEIVER_FAMILIES,
+           "pulsed": PULSED_FAMILIES}
 PEAK_METHODS = ("bin", "parabolic", "dtft")
 HEX_COUNTS = tuple(3 * m * (m + 1) + 1 for m in range(16))   # 1, 7, 19, 37, 61, 91, 127, ...
 OUTLIER_CELLS = 5.0     # |d_error| beyond this many chirp range-resolution cells is an outlier
@@ -472,6 +474,18 @@ def accuracy_study(mission: str | Path | None = None, overrides: Sequence[str] =
         for s in runs:
             row = record(s, config_with(turb, s.overrides), top, pattn, top_point, True, ref_row,
                          n_shots=n_turb)
+            ref_row = row if s.reference else ref_row
+
+    if "receiver" in fams:
+        rx = ar.receiver_base()
+        pattn = pattn_for_snr(config_with(rx, {"effects.enabled": []}), top, start_db=0.0)
+        ref_row = None
+        for label, tier, arch, comb in ar.RECEIVER_CASES:
+            s = Setting("receivers", "receiver", tier, label, "receiver.architecture",
+                        arch if comb is None else f"fpa {comb}", ar.case_overrides(arch, comb),
+                        reference=ref_row is None)
+            cfg = config_with(rx, {**s.overrides, "channel.extra_attenuation_db": pattn})
+            row = record(s, cfg, top, pattn, top_point, True, ref_row)
             ref_row = row if s.reference else ref_row
 
     if any(f in PULSED_FAMILIES for f in fams):
