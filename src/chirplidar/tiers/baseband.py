@@ -263,6 +263,7 @@ class _BasebandRun:
             transfer=single_pole(b.bandwidth_hz),
             search_max_hz=min(peak_search_max_hz(config, bud), self.top),
             keep_spectrum=keep_spectrum,
+            arm_cross=None if self.mode == "homodyne" else self.cross,
         )
         # The detector noise (both arms, arm 1, arm 2) at the operating point the first block
         # sets (_BlockCurrents).
