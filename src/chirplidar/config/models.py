@@ -262,6 +262,12 @@ class MissionConfig(StrictModel):
                              "bench's fiber channel has no telescope")
         if self.processing.doppler_recovery == "squaring" and self.processing.doppler_max_hz is None:
             raise ValueError("processing.doppler_recovery = 'squaring' needs processing.doppler_max_hz")
+        if self.processing.doppler_recovery == "dsp" and not (
+                self.system.receiver == "coherent" and self.system.coherent_mode == "phase_diversity"):
+            raise ValueError(
+                "processing.doppler_recovery = 'dsp' needs the I/Q receiver's complex record: set "
+                "system.receiver = 'coherent' and system.coherent_mode = 'phase_diversity' (got "
+                f"receiver {self.system.receiver!r}, coherent_mode {self.system.coherent_mode!r})")
         lw_on = self.laser.linewidth_hz > 0
         if lw_on != ("phase_noise" in self.effects.enabled):
             raise ValueError(

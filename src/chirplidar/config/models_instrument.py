@@ -107,9 +107,14 @@ class Processing(StrictModel):
         4e6, gt=0, description="span around the peak over which the noise level is averaged; "
         "where the tone's own skirt is not flat there, the window (span / 2 - guard each side) "
         "is stepped outward, up to 16 steps, to the first one beyond the skirt")
-    doppler_recovery: Literal["none", "squaring"] = Field(
+    doppler_recovery: Literal["none", "squaring", "dsp"] = Field(
         "none", description="'squaring' squares the real beat record and reads the line at "
-        "2 f_R, which Doppler does not move (thesis Appendix D; rf tier, homodyne receivers)")
+        "2 f_R, which Doppler does not move (thesis Appendix D; rf tier, homodyne receivers). "
+        "'dsp' compensates it in the combining DSP of the phase-diversity (I/Q) receiver: the "
+        "two arms form the complex record C(t) exp(j 2 pi f_d t), lines at f_d +- f_R; f_d is "
+        "estimated per shot as their centre of symmetry, removed, and the folded spectrum read "
+        "at f_R (no noise penalty; valid while both lines lie in the processed band; rf, "
+        "baseband and link tiers, system.coherent_mode = 'phase_diversity')")
     doppler_max_hz: float | None = Field(
         None, gt=0, description="largest Doppler shift expected (squaring): the search for 2 f_R "
         "starts above 2 x this, clear of the squared Doppler line at 2 f_d (Appendix D assumes "

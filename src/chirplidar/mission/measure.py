@@ -14,7 +14,8 @@ splits the homodyne line (thesis Appendix D): the SNR takes the link tier's spli
 lines sit at |f_R + f_d| and |f_R - f_d| with equal power: the peak search takes one of those
 inside the processed band (either, with equal chance, when both are), as the rf and baseband
 tiers do through their noise. Such a range is off by f_d / kappa: unless
-``processing.doppler_recovery`` recovers it (rf tier), the return is flagged
+``processing.doppler_recovery`` recovers it (squaring: rf tier; "dsp": the phase-diversity
+receiver's combining DSP, which the link tier models as the zero-Doppler shot), the return is flagged
 ``doppler_displaced`` (``detected = 4``) whenever the record resolves it (|f_d| T_ov >= 1, T_ov
 the chirps' overlap at the shot's lag).
 ``attitude.doppler_steering`` removes the shift at its source (beams in the body's across-track

@@ -59,8 +59,8 @@ from .common import (
     optimal_phase,
     peak_search_max_hz,
 )
-from .model import Instrument, Measurements, Returns, UnsupportedError
-from .records import analyze_block, concatenate_blocks
+from .model import Instrument, Measurements, Returns
+from .records import analyze_block, concatenate_blocks, records_per_shot
 from .registry import BASEBAND_SUPPORTS
 
 DIRECT_POWER_AVERAGE = True  # draw eligible power averages per bin (tests switch it off to compare)
@@ -132,25 +132,6 @@ def _simulate_baseband(config, returns, rng, keep_spectrum) -> Measurements:
         if returns.echoes is None
         else echo_mean_offset_s((run.offsets, run.weights)),
     )
-
-
-def records_per_shot(config: Instrument) -> tuple[int, str]:
-    """Records per shot and how their spectra combine: the ``processing.averages`` chirps, and
-    an FPA combined incoherently sums its N^2 pixels' power spectra too. Each pixel is then a
-    record at the combined SNR sum_k S_k / sum_k N_k (the channel's gain): the sum of K
-    spectra sum_k |c_k s + n_k|^2 is noncentral chi-square with 2K degrees of freedom per bin,
-    whose law depends on the total noncentrality sum_k |c_k|^2 / N only (pixels of equal noise
-    N; an LO of unequal shares makes it an approximation)."""
-    proc, rx = config.processing, config.receiver
-    if rx is None or rx.architecture != "fpa" or rx.combining != "incoherent":
-        return proc.averages, proc.averaging
-    if proc.averaging == "coherent" and proc.averages > 1:
-        raise UnsupportedError(
-            "the baseband tier does not model an FPA combined incoherently after coherent "
-            "averaging over chirps (processing.averaging = 'coherent', averages > 1): set "
-            "processing.averaging = 'power', or fly --tier link"
-        )
-    return proc.averages * rx.pixel_count, "power"
 
 
 class _BasebandRun:
@@ -283,6 +264,7 @@ class _BasebandRun:
             search_max_hz=min(peak_search_max_hz(config, bud), self.top),
             keep_spectrum=keep_spectrum,
             averaging=self.averaging,
+            arm_cross=None if self.mode == "homodyne" else self.cross,
         )
         # The detector noise (both arms, arm 1, arm 2) at the operating point the first block
         # sets (_BlockCurrents).

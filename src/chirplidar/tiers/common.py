@@ -93,6 +93,18 @@ def doppler_line_hz(config, bud, f_beat_hz, f_doppler_hz, rng) -> np.ndarray:
     return np.where(down_in & (~up_in | coin), down, up)
 
 
+def dsp_doppler_unlocked(config, bud, f_doppler_hz) -> np.ndarray:
+    """Shots whose Doppler shift ``processing.doppler_recovery = "dsp"`` cannot lock on: a line
+    of the complex record, f_d + f_R or f_d - f_R, outside the processed band
+    highpass_hz <= |f| <= :func:`peak_search_max_hz` that the DSP band-passes the arms to
+    (:func:`~chirplidar.tiers.records.dsp_compensated_arms`): without the pair the centre of
+    symmetry is not f_d. Shots without Doppler are never flagged."""
+    f_d = np.asarray(f_doppler_hz, float)
+    lo, hi = config.processing.highpass_hz, peak_search_max_hz(config, bud)
+    lines = np.abs(np.stack([f_d + bud.f_beat_hz, f_d - bud.f_beat_hz]))
+    return (f_d != 0) & np.any((lines < lo) | (lines > hi), axis=0)
+
+
 def detection_flags(
     config: Instrument, bud, returns: Returns | None = None, *, nyquist_hz=None
 ) -> list[str]:
@@ -101,7 +113,8 @@ def detection_flags(
     on the modulator: no chirp, so no beat), ``harmonic_beat`` (the modulator's bias puts more
     power at twice the chirp phase than at the chirp: the strongest beat is at 2 f_R, not read),
     ``fiber_acceptance_exceeded``,
-    ``doppler_ambiguous``; FM chirps: ``no_overlap``, ``beat_out_of_band``,
+    ``doppler_ambiguous`` (or, with the DSP's Doppler compensation, ``doppler_beyond_dsp_band``:
+    :func:`dsp_doppler_unlocked`); FM chirps: ``no_overlap``, ``beat_out_of_band``,
     ``beat_above_nyquist`` (the beat kappa x lag above ``nyquist_hz``: the tier's Nyquist
     frequency, or the top of the band the baseband tier simulates) and ``range_ambiguous`` (the
     delay differs from the reference delay by less than zero or a chirp period or more: the
@@ -122,7 +135,11 @@ def detection_flags(
         flags.append("harmonic_beat")
     if config.fiber is not None and config.fiber.exceeded:
         flags.append("fiber_acceptance_exceeded")
-    if returns is not None and np.any(np.abs(returns.doppler_hz) >= bud.f_beat_hz):
+    if returns is not None and config.processing.doppler_recovery == "dsp":
+        # The complex record keeps the sign of f_d; the estimate needs both lines in the band.
+        if np.any(dsp_doppler_unlocked(config, bud, returns.doppler_hz)):
+            flags.append("doppler_beyond_dsp_band")
+    elif returns is not None and np.any(np.abs(returns.doppler_hz) >= bud.f_beat_hz):
         # Appendix D: the line at f_R - f_d folds through zero; its sign is lost.
         flags.append("doppler_ambiguous")
     if config.system.modulation == "fm_chirp":

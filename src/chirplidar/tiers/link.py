@@ -8,6 +8,15 @@ mean operating point. SNR = tone / (noise PSD x RBW), as the rf tier measures it
 Range: the measured beat is drawn around the true one with the Cramer-Rao spread of a tone of the
 overlap duration (Rife & Boorstyn 1974), so the link tier's d_rx has a realistic scatter; no spectrum.
 
+Doppler: a shift the record resolves (|f_d| T_ov >= 1) splits the real homodyne line into
+|f_R +- f_d| of a quarter of the optimum-phase power each (Appendix D) and the peak search takes one
+of them. With the combining DSP's compensation (``processing.doppler_recovery = "dsp"``, the
+phase-diversity receiver) the shot is the zero-Doppler one: its SNR, and the beat drawn about f_R
+with the Cramer-Rao spread. That holds while the estimate locks: both lines f_d +- f_R of the
+complex record inside the processed band (else flagged ``doppler_beyond_dsp_band``; the closed form
+then overstates the shot) and a beat strong enough to be detected at all (the estimate reads the
+same two lines; tests/test_doppler_dsp.py measures it on the rf and baseband tiers).
+
 Carrier phase ``random``: :func:`simulate_link` uses the mean over a uniform phase (half the
 optimum-phase power; its SNR is the mean SNR that sweeps and sensitivity curves need). The per-shot
 fading about that mean (thesis eq. 3.3.12, Sec. 5 field trial, Appendix D), after the record's
@@ -210,9 +219,11 @@ def simulate_link(
     # (At least one grid cell: with no overlap the SNR is zero and the scatter spans the band.)
     t_ov = float(overlap_duration_s(config, bud, bud.lag_s, ref_delay_s=bud.ref_delay_s))
     # Doppler (Appendix D): a shift the record resolves splits the real beat into lines at
-    # f_R +- f_d of a quarter of the optimum-phase power each, whatever the carrier phase.
+    # f_R +- f_d of a quarter of the optimum-phase power each, whatever the carrier phase. The
+    # combining DSP ("dsp") removes f_d from the complex record first: no split (its validity,
+    # both lines f_d +- f_R in the band, is flagged: doppler_beyond_dsp_band).
     f_d = np.abs(returns.doppler_hz)
-    split = f_d >= 1.0 / t_ov
+    split = (f_d >= 1.0 / t_ov) & (proc.doppler_recovery != "dsp")
     extra = {}
     if mode in ("homodyne", "phase_diversity"):
         phase_power = np.where(split, 0.25, _phase_power(returns, bud, mode))

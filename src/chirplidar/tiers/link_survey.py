@@ -23,7 +23,8 @@ peak SNR drops, and the effective duration shortens, by that width ratio g. The 
 drawn around the shot's own with the Cramer-Rao spread (Rife & Boorstyn 1974).
 
 Doppler: a shift the record resolves (|f_d| >= 1 / T_ov) splits the homodyne line (Appendix D):
-the SNR takes the link tier's split factor and the peak search takes one of |f_R +- f_d|.
+the SNR takes the link tier's split factor and the peak search takes one of |f_R +- f_d|; with
+``processing.doppler_recovery = "dsp"`` nothing is split (the shot is the zero-Doppler one).
 """
 
 from __future__ import annotations
@@ -323,7 +324,9 @@ def survey_shots(
     snr, t_ov, split = mean_snr(
         instrument, path, bud, range_m, att_db, lag_s, no_overlap, doppler, window_lag_s
     )
-    resolved = np.abs(doppler_hz) >= 1.0 / t_ov
+    # The combining DSP removes the shift before reading (tiers.link: no split).
+    dsp = instrument.processing.doppler_recovery == "dsp"
+    resolved = (np.abs(doppler_hz) >= 1.0 / t_ov) & (not dsp)
     # Carrier fading about the nodes' mean phase power, or each shot's static phase (with the
     # speckle field's phase, when that effect is on) about the optimum; a resolved Doppler
     # split replaces it.

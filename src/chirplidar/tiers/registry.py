@@ -15,34 +15,44 @@ from .model import Instrument, Measurements, Returns, Supports
 
 _ALL_RECEIVERS = frozenset({"homodyne", "phase_diversity", "heterodyne", "pin", "apd"})
 _CHIRPED_TIER = "a pulsed instrument flies with --tier pulsed (survey.tier = 'pulsed')"
+_DSP_HINT = (
+    "dsp compensates the Doppler shift in the complex record of the phase-diversity (I/Q) "
+    "receiver (thesis Appendices C and D): set system.coherent_mode = 'phase_diversity'"
+)
 
 RF_SUPPORTS = Supports(
     receivers=_ALL_RECEIVERS,
     modulations=frozenset({"fm_chirp", "pn_code"}),
-    doppler_recovery=frozenset({"none", "squaring"}),
+    doppler_recovery=frozenset({"none", "squaring", "dsp"}),
     echoes=True,
     spectrum=True,
-    recovery_receivers={"squaring": frozenset({"homodyne"})},
+    recovery_receivers={
+        "squaring": frozenset({"homodyne"}),
+        "dsp": frozenset({"phase_diversity"}),
+    },
     architectures=frozenset({"fiber", "large_detector"}),
     hint={
         "kind": _CHIRPED_TIER,
-        "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix D)",
         "architecture": "an FPA's N x N pixel records fly with --tier baseband or link",
+        "recovery_receiver": "squaring recovers the self-chirped homodyne beat (thesis Appendix "
+        "D); " + _DSP_HINT,
     },
 )
 BASEBAND_SUPPORTS = Supports(
     receivers=frozenset({"homodyne", "phase_diversity"}),
     modulations=frozenset({"fm_chirp"}),
-    doppler_recovery=frozenset({"none"}),
+    doppler_recovery=frozenset({"none", "dsp"}),
     echoes=True,
     spectrum=True,
     architectures=frozenset({"fiber", "large_detector", "fpa"}),
     combining=frozenset({"incoherent", "mrc", "selection"}),
+    recovery_receivers={"dsp": frozenset({"phase_diversity"})},
     hint={
         "kind": _CHIRPED_TIER,
         "combining": "gains estimated from the data (mrc_estimated) fly with --tier link",
         "modulation": "use --tier rf",
         "receiver": "use --tier rf or link (direct and heterodyne detection)",
+        "recovery_receiver": _DSP_HINT,
         "doppler_recovery": "use --tier rf: squaring the full-rate record folds in products "
         "the baseband record does not hold",
     },
@@ -50,14 +60,16 @@ BASEBAND_SUPPORTS = Supports(
 LINK_SUPPORTS = Supports(
     receivers=_ALL_RECEIVERS,
     modulations=frozenset({"fm_chirp"}),
-    doppler_recovery=frozenset({"none"}),
+    doppler_recovery=frozenset({"none", "dsp"}),
     echoes=False,
     spectrum=False,
     architectures=frozenset({"fiber", "large_detector", "fpa"}),
     combining=frozenset({"incoherent", "mrc", "mrc_estimated", "selection"}),
+    recovery_receivers={"dsp": frozenset({"phase_diversity"})},
     hint={
         "kind": _CHIRPED_TIER,
         "modulation": "use --tier rf",
+        "recovery_receiver": _DSP_HINT,
         "doppler_recovery": "use --tier rf: its noise penalty has no closed form here",
     },
 )

@@ -213,7 +213,17 @@ def simulate_rf(
         pn_reference=pn_reference,
         nyquist_hz=grid.fs / 2,
         delay_offset_s=echo_mean_offset_s(returns.echo_arrays()),
+        arm_cross=_arm_cross(config, bud) if mode == "phase_diversity" else None,
     )
+
+
+def _arm_cross(config: Instrument, bud: Budget) -> tuple[complex, complex]:
+    """The hybrid arms' cross coefficients c_j = r_j S_j0 S_j1* (arm j's current holds
+    2 Re(c_j E_LO E_s*), :func:`~chirplidar.receiver.fields.port_power`)."""
+    S = HYBRID_90 * coupler_field_transmission(config)
+    resp = responsivities(config, bud.nu_hz)
+    r = (resp["balanced_1"], resp["balanced_2"])
+    return (complex(r[0] * S[0, 0] * np.conj(S[0, 1])), complex(r[1] * S[1, 0] * np.conj(S[1, 1])))
 
 
 def _laser_phase_noise(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator):
