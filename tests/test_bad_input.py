@@ -40,7 +40,7 @@ import tomli_w
 ROOT = Path(__file__).resolve().parents[1]
 
 #: survey missions (checked by ``run --dry-run``) and the lab-bench ones (``shot``)
-SURVEYS = ("greenland_uav.toml", "icesat_like.toml")
+SURVEYS = ("greenland_uav.toml", "icesat_like.toml", "greenland_uav_receivers.toml")
 BENCHES = ("thesis_bench.toml", "thesis_ch5_bench.toml", "glas_bench.toml")
 #: the files a mutation may change: the missions, the instrument files they extend, the scenes
 FILES = (*SURVEYS, *BENCHES, "thesis_field_instrument.toml", "icesat2_instrument.toml",

@@ -90,7 +90,8 @@ def arms_to_complex(x1, x2, arm_cross) -> np.ndarray:
 
     c_j = r_j S_j0 S_j1* is arm j's cross coefficient (responsivity times the hybrid's field
     coefficients of the LO and the signal; thesis Appendix C, eq. 5.5) and Y = E_LO E_s* the
-    optical product: [x1, x2]^T = 2 [[Re c1, -Im c1], [Re c2, -Im c2]] [Re Y, Im Y]^T, inverted.
+    optical product: (x1, x2) = 2 M (Re Y, Im Y), M = ((Re c1, -Im c1), (Re c2, -Im c2)),
+    inverted.
     The system is singular for in-phase arms (a balanced 3 dB pair: c2 = -c1), which carry one
     quadrature only.
     """
