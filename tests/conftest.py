@@ -147,3 +147,16 @@ def apd_circuit_variance(apd, bandwidth_hz: float, fs_hz: float, *, white: bool 
         band = min(1 / (4 * np.sqrt(np.pi) * sigma_h), band)
     return psd * band / (fs_hz * Q) ** 2
 
+
+def one_line_refusal(argv, capsys, *needles) -> str:
+    """Run the command line; it must exit 2 with one stderr line (no traceback) holding every
+    needle. Returns that line."""
+    from chirplidar import cli
+
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]

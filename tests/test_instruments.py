@@ -18,7 +18,7 @@ import pytest
 from chirplidar import cli
 from chirplidar.config import ConfigError, load_mission
 from chirplidar.units import PLANCK_J_S, SPEED_OF_LIGHT_M_S
-from conftest import GLAS_BENCH, ROOT
+from conftest import GLAS_BENCH, ROOT, one_line_refusal
 
 INSTRUMENTS = ROOT / "instruments"
 GREENLAND = ROOT / "missions" / "greenland_uav.toml"
@@ -99,62 +99,53 @@ def test_a_mission_that_names_an_instrument_and_sets_instrument_keys_is_refused(
         load_mission(path)
 
 
-def _one_line(argv, capsys, *needles):
-    code = cli.main(argv)
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
-    for needle in needles:
-        assert needle in lines[0], lines[0]
-    return lines[0]
-
 
 def test_missing_instrument_file_is_one_line(capsys, tmp_path):
-    _one_line(["run", str(GREENLAND), "--instrument", str(tmp_path / "nope.toml"),
+    one_line_refusal(["run", str(GREENLAND), "--instrument", str(tmp_path / "nope.toml"),
                "--out", str(tmp_path / "x.nc")], capsys, "nope.toml", "does not exist")
     path = tmp_path / "m.toml"
     path.write_text(f'extends = "{GREENLAND}"\ninstrument = "gone.toml"\n')
-    _one_line(["run", str(path), "--dry-run"], capsys, "gone.toml", "does not exist")
+    one_line_refusal(["run", str(path), "--dry-run"], capsys, "gone.toml", "does not exist")
 
 
 def test_chirp_keys_in_a_pulsed_instrument_are_one_line(capsys, tmp_path):
     path = tmp_path / "glas_chirp.toml"
     path.write_text(f'extends = "{INSTRUMENTS / "glas.toml"}"\n[waveform]\nf_stop_hz = 300e6\n')
-    _one_line(["run", str(GREENLAND), "--instrument", str(path), "--dry-run"], capsys,
+    one_line_refusal(["run", str(GREENLAND), "--instrument", str(path), "--dry-run"], capsys,
               "pulsed instrument", "[waveform]")
 
 
 def test_pulse_keys_in_a_chirped_instrument_are_one_line(capsys):
-    _one_line(["shot", str(ROOT / "missions" / "thesis_ch5_bench.toml"), "--tier", "link",
+    one_line_refusal(["shot", str(ROOT / "missions" / "thesis_ch5_bench.toml"), "--tier", "link",
                "--set", "digitizer.bits=8"], capsys, "[digitizer]", "pulsed instrument")
 
 
 def test_a_chirped_instrument_on_the_pulsed_tier_and_the_reverse(capsys):
-    _one_line(["shot", str(ROOT / "missions" / "thesis_ch5_bench.toml"), "--tier", "pulsed"],
+    one_line_refusal(["shot", str(ROOT / "missions" / "thesis_ch5_bench.toml"), "--tier", "pulsed"],
               capsys, "pulsed tier does not model a chirped instrument")
-    _one_line(["shot", str(GLAS_BENCH), "--tier", "link"], capsys,
+    one_line_refusal(["shot", str(GLAS_BENCH), "--tier", "link"], capsys,
               "link tier does not model a pulsed instrument", "--tier pulsed")
 
 
 def test_a_pulse_shorter_than_a_sample_is_one_line(capsys):
-    _one_line(["shot", str(GLAS_BENCH), "--tier", "pulsed", "--set", "pulse.duration_s=0.5e-9"],
+    one_line_refusal(["shot", str(GLAS_BENCH), "--tier", "pulsed", "--set", "pulse.duration_s=0.5e-9"],
               capsys, "pulse.duration_s", "digitizer.sample_rate_hz")
 
 
 def test_a_prf_whose_pulses_overlap_the_range_window_is_one_line(capsys):
     # 544 samples at 1 GHz hold 544 ns: a PRF of 2 MHz fires every 500 ns, inside it.
-    _one_line(["shot", str(GLAS_BENCH), "--tier", "pulsed", "--set", "pulse.prf_hz=2e6"],
+    one_line_refusal(["shot", str(GLAS_BENCH), "--tier", "pulsed", "--set", "pulse.prf_hz=2e6"],
               capsys, "pulse.prf_hz", "overlap")
 
 
 def test_a_pulsed_survey_needs_its_background_and_no_chirp_range_window(capsys, tmp_path):
     glas = str(INSTRUMENTS / "glas.toml")
-    _one_line(["run", str(GREENLAND), "--instrument", glas, "--dry-run"], capsys,
+    one_line_refusal(["run", str(GREENLAND), "--instrument", glas, "--dry-run"], capsys,
               "[background]")
-    _one_line(["run", str(COMPARE), "--instrument", glas, "--dry-run",
+    one_line_refusal(["run", str(COMPARE), "--instrument", glas, "--dry-run",
                "--set", "survey.range_window_m=50"], capsys, "survey.range_window_m",
               "digitizer")
-    _one_line(["run", str(COMPARE), "--instrument", glas, "--dry-run",
+    one_line_refusal(["run", str(COMPARE), "--instrument", glas, "--dry-run",
                "--set", "survey.prf_hz=100"], capsys, "survey.prf_hz", "pulse.prf_hz")
 
 
@@ -233,7 +224,7 @@ def test_compare_flies_both_instruments_and_shows_the_trade(tmp_path, capsys):
 
 def test_compare_checks_every_instrument_before_flying_any(tmp_path, capsys):
     # greenland_uav.toml has no [background]: GLAS cannot fly it, and nothing is flown.
-    _one_line(["compare", str(GREENLAND), "--instrument", str(INSTRUMENTS / "ku_self_chirped.toml"),
+    one_line_refusal(["compare", str(GREENLAND), "--instrument", str(INSTRUMENTS / "ku_self_chirped.toml"),
                "--instrument", str(INSTRUMENTS / "glas.toml"), "--out-dir", str(tmp_path / "out"),
                "--no-progress"], capsys, "--instrument", "glas.toml", "[background]")
     assert not (tmp_path / "out").exists()

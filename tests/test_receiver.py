@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chirplidar import cli
 from chirplidar.channel.lab import lab_returns
 from chirplidar.channel.receiver import receiver_optics, shot_pixels
 from chirplidar.config import load_mission
@@ -19,7 +18,7 @@ from chirplidar.config.loader import config_with
 from chirplidar.optics import coupling_beta, coupling_efficiency, monostatic_diffuse_coupling
 from chirplidar.optics.focal_plane import mean_mixing_efficiency_focal
 from chirplidar.tiers.registry import TIERS
-from conftest import ROOT
+from conftest import ROOT, one_line_refusal
 
 FIELD = ROOT / "missions" / "thesis_field_instrument.toml"
 LAMBDA = 1310e-9  # thesis_ch5_bench.toml's laser
@@ -171,14 +170,6 @@ def test_estimated_gains_cost_snr_in_the_link_tier(field):
     assert np.all(out["mrc_estimated"] < out["mrc"])
 
 
-def _one_line(argv, capsys, *needles):
-    code = cli.main(argv)
-    err = capsys.readouterr().err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
-    for needle in needles:
-        assert needle in lines[0], lines[0]
-
 
 def _sets(over: dict) -> list[str]:
     out = []
@@ -207,11 +198,11 @@ def test_bad_receivers_are_one_line(capsys, change, needles):
     if "survey.tier" in over:
         over.pop("survey.tier")
         tier = ["--tier", "baseband"]
-    _one_line(["shot", str(FIELD), *tier, *_sets(over)], capsys, *needles)
+    one_line_refusal(["shot", str(FIELD), *tier, *_sets(over)], capsys, *needles)
 
 
 def test_an_architecture_the_tier_does_not_model_is_one_line(capsys):
-    _one_line(["shot", str(FIELD), "--tier", "rf", *_sets(FPA_SETS)], capsys,
+    one_line_refusal(["shot", str(FIELD), "--tier", "rf", *_sets(FPA_SETS)], capsys,
               "receiver.architecture = 'fpa'", "rf")
 
 
