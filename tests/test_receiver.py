@@ -237,3 +237,18 @@ def test_fpa_dsp_doppler_compensation_keeps_the_range_error(field):
         assert r / zero - 3 * np.hypot(se / zero, r * zero_se / zero**2) <= 1.5
     off, _ = rms(10e6, "none")
     assert off > 50.0
+
+
+def test_rf_tier_flies_the_large_detector_as_the_link_tier_does(field):
+    """The rf tier takes a single detector's gain and beat phase like the link tier: a plane
+    wave (deterministic gain) on a large detector, homodyne at the optimum phase, reads the
+    link tier's SNR within 1 dB (12 shots)."""
+    cfg = _config(field, _large(4 * LAMBDA_F_D, 3 * LAMBDA_F_D),
+                  {"channel.carrier_phase": "optimal", "channel.distance_m": 120.0,
+                   "channel.extra_attenuation_db": -20.0}, speckle=False)
+    ret = lab_returns(cfg, 12, np.random.default_rng(13))
+    inst = instrument_from_config(cfg)
+    snr = [float(np.median(TIERS[t].simulate(inst, ret, np.random.default_rng(14))["SNR"]))
+           for t in ("link", "rf")]
+    print("link, rf:", snr)
+    assert abs(snr[0] - snr[1]) < 1.0

@@ -25,7 +25,8 @@ configured detector's for the fiber and the large detector; ``receiver.pixel_*``
 pixel; thesis Sec. 2.5). The FPA combines them: maximal ratio sum_k g_k (Brennan 1959; also for
 ``mrc_estimated``, whose estimation loss the link tier applies from the shot's SNR), selection
 max_k g_k, incoherent sum_k |a_k|^2 N_ref / sum_k N_k. The result multiplies the shot's
-``power_factor``; the beat's phase arg a (one detector) adds to its ``phase_rad``.
+``power_factor``; the beat's phase (one detector), relative to a plane wave's, adds to its
+``phase_rad``.
 """
 
 from __future__ import annotations
@@ -244,6 +245,8 @@ def _combine(config, opt: ReceiverOptics, px) -> tuple[np.ndarray, np.ndarray | 
     share = np.abs(beat) ** 2  # the pixels' tone over the ideal one
     noise = np.broadcast_to(opt.noise_ratio(px.lo_power_w.reshape(k)), share.shape)
     if rx.architecture != "fpa":
-        return share[:, 0] / noise[:, 0], np.angle(beat[:, 0])
+        # The phase relative to a plane wave's beat: focusing multiplies every field by -i
+        # (focal_fields), a constant the receiver's tuning ("optimal" carrier phase) absorbs.
+        return share[:, 0] / noise[:, 0], np.angle(1j * beat[:, 0])
     rule = {"incoherent": fpa.incoherent_snr, "selection": fpa.selection_snr}
     return rule.get(rx.combining, fpa.mrc_snr)(share, noise), None
