@@ -21,8 +21,8 @@ noise N_ref = shot + circuit) is
     g_k = |a_k|^2 N_ref / N_k,    N_k = shot_ref x P_LO,k + n_k,
 
 P_LO,k the LO's share on detector k and n_k its own circuit noise and dark current (the
-configured detector's for the fiber and the large detector; ``receiver.pixel_*`` for each FPA
-pixel; thesis Sec. 2.5). The FPA combines them: maximal ratio sum_k g_k (Brennan 1959; also for
+configured detector's for the fiber and the large detector; ``receiver.fpa.noise_a_per_rthz``
+and ``dark_current_a`` for each FPA pixel; thesis Sec. 2.5). The FPA combines them: maximal ratio sum_k g_k (Brennan 1959; also for
 ``mrc_estimated``, whose estimation loss the link tier applies from the shot's SNR), selection
 max_k g_k, incoherent sum_k |a_k|^2 N_ref / sum_k N_k. The result multiplies the shot's
 ``power_factor``; the beat's phase (one detector), relative to a plane wave's, adds to its
@@ -129,8 +129,9 @@ def receiver_optics(config) -> ReceiverOptics:
     pitch = 2.0 * half / n_pix
     # The pupil samples resolve the speckle (3 per rho), the turbulence (2 per r0) and the
     # focal window (the focused field repeats every n lambda f / D).
+    window_lfd = (2 * m + 1) * du * d / (lam * f)
     need = [32, 3.0 * d / rho if rho is not None and "speckle" in config.effects.enabled else 0.0,
-            2.0 * (2 * m + 1) / rx.focal_sampling]
+            2.0 * window_lfd]
     if _turbulent(config):
         need.append(2.0 * _d_over_r0(config))
     n = int(rx.pupil_samples) if rx.pupil_samples is not None else int(np.ceil(max(need)))
@@ -141,8 +142,8 @@ def receiver_optics(config) -> ReceiverOptics:
         circuit = total - lo_shot
     return ReceiverOptics(
         n_pupil=n, aperture_m=d, obstruction=rx.obstruction_ratio, coherence_radius_m=rho,
-        transmit_beta=beta, u_m=u, lo=_lo_field(rx, u), n_pixels=n_pix, pitch_m=pitch, fill_factor=fill,
-        shot_ratio=lo_shot / total, circuit_ratio=circuit / total)
+        transmit_beta=beta, u_m=u, lo=_lo_field(rx, u), n_pixels=n_pix, pitch_m=pitch,
+        fill_factor=fill, shot_ratio=lo_shot / total, circuit_ratio=circuit / total)
 
 
 def _lo_field(rx, u) -> np.ndarray:
@@ -174,7 +175,7 @@ def receiver_returns(config, returns, rng: np.random.Generator):
     opt = receiver_optics(config)
     batch = returns.power_factor.size
     gain, phase = np.empty(batch), np.zeros(batch)
-    screens = _screens(config, opt, batch, child_stream(rng, "effect.receiver_turbulence"))
+    screens = _screens(config, opt, child_stream(rng, "effect.receiver_turbulence"))
     speckle_rng = child_stream(rng, "effect.receiver_speckle")
     n, n_out = opt.n_pupil, opt.u_m.size
     step = max(1, _BLOCK_ELEMENTS // (2 * n * n + n * n_out + n_out * n_out))
@@ -189,7 +190,7 @@ def receiver_returns(config, returns, rng: np.random.Generator):
                                phase_rad=returns.phase_rad + phase)
 
 
-def _screens(config, opt: ReceiverOptics, batch: int, rng):
+def _screens(config, opt: ReceiverOptics, rng):
     """A function of a slice of shots giving their (k, n, n) phase screens, or None."""
     if not _turbulent(config):
         return None
