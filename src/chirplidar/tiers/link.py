@@ -284,7 +284,9 @@ def estimated_gain_factor(config: Instrument, snr, rbw_hz: float, duration_s):
     """The SNR factor of an FPA whose DSP estimates each pixel's gain from its own beat
     (``receiver.combining = "mrc_estimated"``): ``fpa.estimated_mrc_factor`` of the record's
     energy SNR snr x RBW x T (the amplitudes are read over the tone's duration T), the
-    channel having applied the known-gain sum; 1 for every other receiver."""
+    channel having applied the known-gain sum; 1 for every other receiver. A survey's shots get
+    it through the link table's nodes (``tiers.link_survey``): a node's attenuation holds the
+    receiver's gain, so its SNR is the shot's before fading."""
     rx = config.receiver
     if rx is None or rx.architecture != "fpa" or rx.combining != "mrc_estimated":
         return 1.0

@@ -41,7 +41,6 @@ from .common import doppler_line_hz, optimal_phase
 from .link import (
     carrier_fading_factor,
     crb_sigma_f_hz,
-    estimated_gain_factor,
     overlap_duration_s,
     simulate_link,
     static_phase_factor,
@@ -343,7 +342,6 @@ def survey_shots(
     g = np.sqrt(1.0 + (2.355 * sigma_f * t_ov / 0.886) ** 2)
     snr = snr / g
     t_eff = t_ov / g
-    snr = snr * estimated_gain_factor(instrument, snr, instrument.processing.rbw_hz, t_eff)
     noise = streams.noise.standard_normal(snr.shape)
     line = doppler_line_hz(
         instrument, bud, f_beat_hz, np.where(resolved, doppler_hz, 0.0), streams.sideband
