@@ -127,11 +127,11 @@ def carrier_fading_factor(
     for s0 in range(0, n, rows):
         sl = slice(s0, min(n, s0 + rows))
         psi = rng.uniform(0.0, 2 * np.pi, (sl.stop - sl.start, k))
-        s, c = np.sin(psi), np.cos(psi)
+        s = np.sin(psi)
         if proc.averaging == "coherent":
             p1[sl] = np.sum(s, axis=1) ** 2 / k
-            p2[sl] = np.sum(c, axis=1) ** 2 / k
-        else:
+            p2[sl] = np.sum(np.cos(psi), axis=1) ** 2 / k
+        else:  # only sin^2: cos^2 = 1 - sin^2 in power (one transcendental per draw)
             p1[sl] = np.mean(s * s, axis=1)
             p2[sl] = 1.0 - p1[sl]
     if sysc.coherent_mode == "homodyne":

@@ -115,6 +115,49 @@ def interp_table(x_nodes, y_nodes, table, x, y):
     return a * (1 - fx) + c * fx
 
 
+def range_nodes(r_lo: float, r_hi: float) -> np.ndarray:
+    """The table's range nodes covering [r_lo, r_hi]: r_k = exp(k x _RANGE_STEP) on one lattice
+    for every chunk of a run (at most 33 nodes: every s-th lattice node, k a multiple of s), so
+    that neighbouring chunks share nodes and :func:`node_snr` evaluates each once per process."""
+    if r_hi <= r_lo:
+        return np.array([r_lo])
+    k0 = int(np.floor(np.log(r_lo) / _RANGE_STEP))
+    k1 = int(np.ceil(np.log(r_hi) / _RANGE_STEP))
+    stride = max(1, -(-(k1 - k0) // 32))
+    k0, k1 = (k0 // stride) * stride, -(-k1 // stride) * stride
+    return np.exp(np.arange(k0, k1 + 1, stride) * _RANGE_STEP)
+
+
+#: node_snr's memo: (instrument, path, range, attenuation, lag) -> (SNR dB, T_ov s).
+_NODES: dict = {}
+_NODES_MAX = 1 << 16
+
+
+def node_snr(
+    instrument: Instrument,
+    path: SurveyPath,
+    range_m: float,
+    attenuation_db: float,
+    lag_s: float | None,
+    rng: np.random.Generator,
+) -> tuple[float, float]:
+    """(SNR [dB], T_ov [s]) of one table node from the link tier's closed form, remembered for
+    the process (the instrument is frozen and hashable; the path's reference target follows from
+    its telescope): a run's chunks share the lattice's nodes (:func:`range_nodes`) and compute
+    each once. The closed form draws nothing the node uses: the value does not depend on ``rng``."""
+    key = (instrument, path.group_index, path.carrier_phase, range_m, attenuation_db, lag_s)
+    hit = _NODES.get(key)
+    if hit is None:
+        out = simulate_link(
+            instrument, node_returns(instrument, path, range_m, attenuation_db, lag_s), rng
+        )
+        hit = (float(out["SNR"][0]), float(out["t_overlap_s"][0]))
+        if len(_NODES) >= _NODES_MAX:
+            _NODES.clear()
+        _NODES[key] = hit
+    return hit
+
+
 def link_table(
     instrument: Instrument,
     path: SurveyPath,
@@ -128,23 +171,18 @@ def link_table(
     """SNR [dB] on (range, attenuation) nodes and T_ov [s] per range node, plus the SNR factor
     of a resolved Doppler split, from the link tier's closed form. ``lag_s``: every node's
     tau - tau_ref (a range window's centre); None: the instrument's reference delay."""
-    n_r = 1 if r_hi <= r_lo else int(min(33, np.ceil(np.log(r_hi / r_lo) / _RANGE_STEP) + 1))
-    r_nodes = np.geomspace(r_lo, r_hi, n_r) if n_r > 1 else np.array([r_lo])
+    r_nodes = range_nodes(r_lo, r_hi)
     a0 = np.floor(a_lo / _ATT_STEP_DB) * _ATT_STEP_DB
     a1 = max(
         np.ceil(min(a_hi, a_lo + _ATT_SPAN_DB) / _ATT_STEP_DB) * _ATT_STEP_DB, a0 + _ATT_STEP_DB
     )
     a_nodes = np.arange(a0, a1 + 0.5 * _ATT_STEP_DB, _ATT_STEP_DB)
-    snr_db = np.empty((n_r, a_nodes.size))
-    t_ov = np.empty(n_r)
+    snr_db = np.empty((r_nodes.size, a_nodes.size))
+    t_ov = np.empty(r_nodes.size)
     rng = np.random.default_rng(0)  # the nodes' own draws are not used (SNR is deterministic)
     for i, r in enumerate(r_nodes):  # tens of closed-form evaluations per chunk, not per shot
         for j, a in enumerate(a_nodes):
-            out = simulate_link(
-                instrument, node_returns(instrument, path, float(r), float(a), lag_s), rng
-            )
-            snr_db[i, j] = out["SNR"][0]
-        t_ov[i] = out["t_overlap_s"][0]
+            snr_db[i, j], t_ov[i] = node_snr(instrument, path, float(r), float(a), lag_s, rng)
     split = 1.0
     if doppler and instrument.system.receiver == "coherent":
         # Appendix D: a resolved Doppler shift splits the real homodyne line; the factor is the
