@@ -315,7 +315,9 @@ def mean_snr(
         t_shot = overlap_at(instrument, bud, lag_s)
         snr = snr * (t_shot / t_ov) ** 2
         t_ov = t_shot
-    unread = ~np.isfinite(snr)
+    # A shot whose own chirps do not overlap has no tone, whatever nodes it lies between (the
+    # lattice's end nodes may lie beyond the chunk's ranges, at lags with overlap).
+    unread = ~np.isfinite(snr) | no_overlap
     if np.any(unread):
         snr, t_ov, split = unread_nodes(
             instrument,
