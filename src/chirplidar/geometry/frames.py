@@ -406,7 +406,7 @@ def grid_axes_ecef(origin_m, epsg):
 
 
 def rays_projected_local(
-    origin_m, direction_true, epsg, *, target_height_m=None, entry_height_m=None
+    origin_m, direction_true, epsg, *, target_height_m=None, entry_height_m=None, axes=None
 ) -> ProjectedRays:
     """Scene-frame rays from origins in the scene frame and directions in true local metres.
 
@@ -418,11 +418,15 @@ def rays_projected_local(
         (via ECEF, see the module docstring and :func:`rays_projected_from_ecef`); otherwise the
         flat approximation: horizontal components scaled by the scale factor ``k`` at the origin,
         ``metres_per_unit`` converting scene-frame lengths back to true metres.
+    axes : optional ``grid_axes_ecef`` of the origins, already computed (e.g. once per shot for
+        its beams; broadcastable to the origins' shape): the same values, not computed again.
     """
     code = checked_epsg(epsg)
     o, d = _ray_arrays("origin_m", origin_m, "direction_true", direction_true)
     if target_height_m is not None:
-        o_ecef, ex, ey, up = grid_axes_ecef(o, code)
+        o_ecef, ex, ey, up = (
+            grid_axes_ecef(o, code) if axes is None else (np.broadcast_to(a, o.shape) for a in axes)
+        )
         d_ecef = d[..., :1] * ex + d[..., 1:2] * ey + d[..., 2:] * up
         d_ecef = d_ecef / np.linalg.norm(d_ecef, axis=-1, keepdims=True)
         return rays_projected_from_ecef(

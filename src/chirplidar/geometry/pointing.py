@@ -246,7 +246,9 @@ class ShotGeometry:
     ("projected" scene frame or "ecef"); direction (n, n_beams, 3) unit beam directions in that
     frame's true-metre sense (ECEF, or for "projected" the local true frame with axes grid x,
     grid y, up); rays: :class:`frames.ProjectedRays` (n, n_beams) in the scene frame, or None
-    when no ``epsg`` was given.
+    when no ``epsg`` was given; axes_ecef: for a "projected" platform with the exact conversion,
+    ``frames.grid_axes_ecef`` of the positions (ECEF position, grid x, grid y, up; each (n, 3)),
+    else None.
     """
 
     t_s: np.ndarray
@@ -255,6 +257,7 @@ class ShotGeometry:
     direction: np.ndarray
     frame: str
     rays: frames.ProjectedRays | None = None
+    axes_ecef: tuple | None = None
 
 
 def zero_doppler_attitude(attitude, velocity, up) -> Attitude:
@@ -333,12 +336,19 @@ def shot_geometry(
     if doppler_steering:
         attitude = zero_doppler_attitude(attitude, vel, up)
     d = beam_directions(vu, up, attitude, beams, t_s=t, jitter_rad_rms=jitter_rad_rms, rng=rng)
-    rays = None
+    rays = axes = None
     if epsg is not None:
         origin = np.broadcast_to(pos[:, None, :], d.shape)
         if frame == "projected":
+            # The grid axes once per shot (its beams share them; callers reuse them too).
+            axes = frames.grid_axes_ecef(pos, epsg) if target_height_m is not None else None
             rays = frames.rays_projected_local(
-                origin, d, epsg, target_height_m=target_height_m, entry_height_m=entry_height_m
+                origin,
+                d,
+                epsg,
+                target_height_m=target_height_m,
+                entry_height_m=entry_height_m,
+                axes=None if axes is None else tuple(a[:, None, :] for a in axes),
             )
         else:
             if target_height_m is None:
@@ -348,4 +358,4 @@ def shot_geometry(
             rays = frames.rays_projected_from_ecef(
                 origin, d, epsg, target_height_m=target_height_m, entry_height_m=entry_height_m
             )
-    return ShotGeometry(t, pos, vel, d, frame, rays)
+    return ShotGeometry(t, pos, vel, d, frame, rays, axes)

@@ -375,13 +375,14 @@ class ChunkGeometry:
         return r.origin_m + t[..., None] * r.direction
 
 
-def _angles(path_frame: str, pos, d, epsg):
-    """Off-nadir angle, azimuth from true north and ECEF beam directions for (n, b) beams."""
+def _angles(path_frame: str, pos, d, epsg, axes=None):
+    """Off-nadir angle, azimuth from true north and ECEF beam directions for (n, b) beams
+    (``axes``: the positions' ``frames.grid_axes_ecef`` when already computed)."""
     if path_frame == "ecef":
         lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
         d_ecef = d
     else:
-        o_ecef, ex, ey, up = frames.grid_axes_ecef(pos, epsg)
+        o_ecef, ex, ey, up = frames.grid_axes_ecef(pos, epsg) if axes is None else axes
         d_ecef = d[..., :1] * ex[:, None] + d[..., 1:2] * ey[:, None] + d[..., 2:] * up[:, None]
         lat, lon, _ = frames.ecef_to_geodetic(o_ecef[:, 0], o_ecef[:, 1], o_ecef[:, 2])
     enu = frames.enu_basis(lat, lon)  # (n, 3, 3) rows east, north, up
@@ -404,7 +405,7 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
     else:
         platform = sg.position_m
     if n:
-        off, az = _angles(sg.frame, sg.position_m, sg.direction, plan.epsg)
+        off, az = _angles(sg.frame, sg.position_m, sg.direction, plan.epsg, sg.axes_ecef)
     else:
         off = az = np.zeros((0, b))
     closing = np.einsum("nj,nbj->nb", sg.velocity_mps, sg.direction)
