@@ -29,6 +29,7 @@ shot's own phase to the optimum-phase SNR.
 from __future__ import annotations
 
 import dataclasses
+from functools import lru_cache
 
 import numpy as np
 from scipy.special import j0
@@ -52,6 +53,30 @@ from .model import CarrierPhase, Instrument, Measurements, Returns
 from .registry import LINK_SUPPORTS
 
 _GRID = 8192  # points over the record for slowly varying envelopes
+
+
+@lru_cache(maxsize=1024)
+def grid_envelope(train, duration_s: float, *shifts_s: float) -> np.ndarray:
+    """``train.envelope(mod(t - s_1 - s_2 ..., period))`` on the record grid t of ``_GRID``
+    points (read-only). Remembered: a survey's table nodes share their reference's and their
+    range's envelopes (the train is frozen and hashable; the shifts are subtracted one by one,
+    so the values are those of the expression written out)."""
+    t = (np.arange(_GRID) + 0.5) * (duration_s / _GRID)
+    for s in shifts_s:
+        t = t - s
+    out = train.envelope(np.mod(t, train.period_s))
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=1024)
+def grid_fundamental_field(
+    train, bias_v: float, v_pi_v: float, duration_s: float, shift_s: float
+) -> np.ndarray:
+    """``mzm_fundamental_field`` of :func:`grid_envelope` (read-only, remembered likewise)."""
+    out = mzm_fundamental_field(train, bias_v, v_pi_v, grid_envelope(train, duration_s, shift_s))
+    out.setflags(write=False)
+    return out
 
 
 def _coherence(a: np.ndarray, dt: float, linewidth_hz: float, lag_s: float) -> float:
@@ -175,11 +200,11 @@ def overlap_duration_s(config: Instrument, bud, lag_s, *, ref_delay_s: float = 0
     sim, train = config.simulation, bud.train
     t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
     gate = train.record_gate(t, sim.duration_s)
-    w_lo = train.envelope(np.mod(t - ref_delay_s, train.period_s)) * gate
+    w_lo = grid_envelope(train, sim.duration_s, ref_delay_s) * gate
     lags = np.atleast_1d(np.asarray(lag_s, float))
     out = np.empty(lags.shape)
     for k, lag in enumerate(lags.ravel()):  # a few lags per call (the table's nodes)
-        w_sig = train.envelope(np.mod(t - ref_delay_s - lag, train.period_s))
+        w_sig = grid_envelope(train, sim.duration_s, ref_delay_s, float(lag))
         out.flat[k] = max(float(np.mean(w_lo * w_sig > 0.25)), 1.0 / _GRID) * sim.duration_s
     return out.reshape(np.shape(lag_s))
 
@@ -209,7 +234,7 @@ def simulate_link(
     train = bud.train
     t = (np.arange(_GRID) + 0.5) * (sim.duration_s / _GRID)
     gate = train.record_gate(t, sim.duration_s).astype(float)
-    w_sig = train.envelope(np.mod(t - bud.delay_s, train.period_s))
+    w_sig = grid_envelope(train, sim.duration_s, bud.delay_s)
     s_sig = config.laser.power_w * bud.tx_gain * bud.h
     resp = responsivities(config, bud.nu_hz)
     mode = config.system.coherent_mode if config.system.receiver == "coherent" else "direct"
@@ -321,10 +346,9 @@ def _coherent_link(
     Doppler shift the record resolves (each arm then holds a quarter of the power)."""
     b, proc, train = config.balanced, config.processing, bud.train
     bias, vpi = config.modulator.bias_v, config.modulator.v_pi_v
-    c_lo = mzm_fundamental_field(
-        train, bias, vpi, train.envelope(np.mod(t - bud.ref_delay_s, train.period_s))
-    )
-    c_sig = mzm_fundamental_field(train, bias, vpi, w_sig)
+    duration = config.simulation.duration_s
+    c_lo = grid_fundamental_field(train, bias, vpi, duration, bud.ref_delay_s)
+    c_sig = grid_fundamental_field(train, bias, vpi, duration, bud.delay_s)
     s_lo = bud.lo_power_scale(b.lo_power_w)
     # Beat of the two fields' fundamentals: (1/2) c_lo c_sig cos(phi_lo - phi_sig).
     env = 0.5 * c_lo * c_sig * gate * np.sqrt(s_lo * s_sig)
