@@ -61,6 +61,31 @@ def _bench_startup(args) -> int:
     return 0
 
 
+#: ``bench --what survey --json``: the keys of the issue, first (the rest of
+#: :func:`..benchmarks.survey.bench_survey`'s result follows them).
+SURVEY_KEYS = ("shots", "rays_per_shot", "seconds", "shots_per_s", "embree_rays_per_s",
+               "floor_ratio")
+
+
+def _bench_survey(args) -> int:
+    """``bench --what survey``: a link-tier run of the mission (the demo by default) against
+    its ray-casting floor on one core, median of min(--repeats, 5) runs."""
+    from ..benchmarks.survey import bench_survey, format_survey
+
+    try:
+        res = bench_survey(args.mission, args.set or [], repeats=max(1, min(args.repeats, 5)),
+                           progress=stderr_lines(args))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.json:
+        out = {k: json_number(res[k]) for k in SURVEY_KEYS}
+        out.update({k: v for k, v in res.items() if k not in SURVEY_KEYS})
+        print(dump_json(out))
+    else:
+        print(format_survey(res))
+    return 0
+
+
 def cmd_bench(args) -> int:
     if args.repeats < 1:
         raise UsageError(f"--repeats must be >= 1, got {args.repeats}")
@@ -68,6 +93,8 @@ def cmd_bench(args) -> int:
         return _bench_startup(args)
     if args.what in ("accuracy", "tiers"):
         return _bench_accuracy_or_tiers(args)
+    if args.what == "survey":
+        return _bench_survey(args)
     if args.what == "raycast":
         from ..benchmarks.raycast import bench_raycast
 
@@ -149,9 +176,10 @@ def cmd_bench(args) -> int:
 def add_bench_parser(sub) -> None:
     """``chirplidar bench``."""
     p = sub.add_parser("bench", help="timing benchmarks (--what): shot, tiers, effects, raycast, "
-                       "scale, campaign, coverage, startup, and the accuracy-against-time study")
+                       "scale, campaign, coverage, survey, startup, and the accuracy-against-time "
+                       "study")
     p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
-                                      "coverage", "campaign", "startup"),
+                                      "coverage", "campaign", "survey", "startup"),
                    default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
                         "and off; raycast: our ray casting against raw embree; tiers: seconds per "
@@ -160,6 +188,9 @@ def add_bench_parser(sub) -> None:
                         "coverage: chirplidar coverage of generated 10 M and 20 M shot files "
                         "(--shots sets the smaller); campaign: the 91-day satellite campaign "
                         "(missions/icesat2_campaign.toml unless --mission) on --workers; "
+                        "survey: a link-tier run of the demo (missions/greenland_uav.toml "
+                        "unless --mission) on one core against the raw embree call on its own "
+                        "rays (floor_ratio; median of min(--repeats, 5) runs); "
                         "startup: chirplidar --help and import chirplidar.units in fresh "
                         "processes")
     p.add_argument("--workers", type=int, default=2,
@@ -190,6 +221,7 @@ def add_bench_parser(sub) -> None:
                         '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
                         '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
                         '"peak_memory_mb", ...} (coverage), {"days", "passes", "shots", "seconds", '
-                        '"shots_per_s"} (campaign), {"help_s", "import_units_s", "python_s", '
+                        '"shots_per_s"} (campaign), {"shots", "rays_per_shot", "seconds", "shots_per_s", '
+                        '"embree_rays_per_s", "floor_ratio", ...} (survey), {"help_s", "import_units_s", "python_s", '
                         '"repeats"} (startup) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)
