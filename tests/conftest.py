@@ -160,3 +160,44 @@ def one_line_refusal(argv, capsys, *needles) -> str:
     for needle in needles:
         assert needle in lines[0], lines[0]
     return lines[0]
+
+
+def write_small_uav(tmp: Path) -> Path:
+    """The Greenland UAV mission over a coarse (50 m) copy of its scene, 30 s of flight at
+    100 Hz = 3000 shots in 6 chunks of 500: ``small_uav.toml`` (and ``scene.toml``) in
+    ``tmp``, the mission's path."""
+    text = (ROOT / "scenes" / "greenland_outlet.toml").read_text()
+    text = text.replace("resolution_m = 5.0", "resolution_m = 50.0", 1)
+    assert "resolution_m = 50.0" in text
+    (tmp / "scene.toml").write_text(text)
+    mission = tmp / "small_uav.toml"
+    mission.write_text(f'extends = "{ROOT / "missions" / "greenland_uav.toml"}"\n'
+                       '[scene]\nfile = "scene.toml"\n'
+                       '[survey]\nstop_s = 30.0\nchunk_shots = 500\n')
+    return mission
+
+
+def netcdf_header(path) -> list:
+    """Everything netCDF stores about a file except the data: dimensions, variables with
+    dtype, dimensions, filters, chunking and typed attributes, typed global attributes."""
+    import netCDF4
+
+    with netCDF4.Dataset(path) as d:
+        out = [("dims", [(k, len(v)) for k, v in d.dimensions.items()]),
+               ("attrs", [(k, type(d.getncattr(k)).__name__, repr(d.getncattr(k)))
+                          for k in d.ncattrs()])]
+        for name, v in d.variables.items():
+            out.append((name, str(v.dtype), v.dimensions, v.filters(), v.chunking(),
+                        [(k, type(v.getncattr(k)).__name__, repr(v.getncattr(k)))
+                         for k in v.ncattrs()]))
+    return out
+
+
+def identical_files(a, b) -> None:
+    """Two results files hold the same data, attributes, encoding and layout."""
+    import xarray as xr
+
+    from chirplidar.mission.results import read_netcdf
+
+    xr.testing.assert_identical(read_netcdf(a), read_netcdf(b))
+    assert netcdf_header(a) == netcdf_header(b)

@@ -21,10 +21,11 @@ import tracemalloc
 from pathlib import Path
 from types import SimpleNamespace
 
-import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
+
+from conftest import identical_files, write_small_uav
 
 from chirplidar.cli import main
 from chirplidar.config.loader import ConfigError
@@ -32,7 +33,6 @@ from chirplidar.mission import measure
 from chirplidar.mission.results import (
     ChunkWriter,
     build_dataset,
-    read_netcdf,
     write_netcdf,
 )
 from chirplidar.mission.executors import CHUNK_DELAY_ENV
@@ -55,14 +55,7 @@ def small(tmp_path_factory):
     """The Greenland UAV mission over a coarse (50 m) copy of its scene, 30 s of flight at
     100 Hz = 3000 shots in 6 chunks of 500."""
     tmp = tmp_path_factory.mktemp("scale")
-    text = (ROOT / "scenes" / "greenland_outlet.toml").read_text()
-    text = text.replace("resolution_m = 5.0", "resolution_m = 50.0", 1)
-    assert "resolution_m = 50.0" in text
-    (tmp / "scene.toml").write_text(text)
-    mission = tmp / "small_uav.toml"
-    mission.write_text(f'extends = "{ROOT / "missions" / "greenland_uav.toml"}"\n'
-                       '[scene]\nfile = "scene.toml"\n'
-                       '[survey]\nstop_s = 30.0\nchunk_shots = 500\n')
+    mission = write_small_uav(tmp)
     cache = tmp / "cache"
     _, _, plan = prepare(mission, cache_dir=cache)
     assert plan.n_chunks == 6 and plan.n_shots == 3000
@@ -87,31 +80,11 @@ def _in_memory_run(mission, out, cache):
     return ds
 
 
-def _header(path):
-    """Everything netCDF stores about a file except the data: dimensions, variables with
-    dtype, dimensions, filters, chunking and typed attributes, typed global attributes."""
-    with netCDF4.Dataset(path) as d:
-        out = [("dims", [(k, len(v)) for k, v in d.dimensions.items()]),
-               ("attrs", [(k, type(d.getncattr(k)).__name__, repr(d.getncattr(k)))
-                          for k in d.ncattrs()])]
-        for name, v in d.variables.items():
-            out.append((name, str(v.dtype), v.dimensions, v.filters(), v.chunking(),
-                        [(k, type(v.getncattr(k)).__name__, repr(v.getncattr(k)))
-                         for k in v.ncattrs()]))
-    return out
-
-
-def _identical_files(a, b):
-    da, db = read_netcdf(a), read_netcdf(b)
-    xr.testing.assert_identical(da, db)
-    assert _header(a) == _header(b)
-
-
 def test_chunked_run_equals_in_memory_path(small, tmp_path):
     mission, cache, serial = small.mission, small.cache, small.serial
     ref = _in_memory_run(mission, tmp_path / "ref.nc", cache)
     xr.testing.assert_identical(serial.dataset, ref)
-    _identical_files(serial.path, tmp_path / "ref.nc")   # encoding and chunking included
+    identical_files(serial.path, tmp_path / "ref.nc")   # encoding and chunking included
     assert not chunk_dir_for(serial.path).exists()        # removed after the merge
     s, r = serial.summary, summarise(ref, serial.path, 0.0)
     for key in ("shots", "beams", "returns", "detected", "below_threshold", "no_surface",
@@ -178,7 +151,7 @@ def test_merge_streams_chunk_slices(tmp_path):
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    _identical_files(tmp_path / "whole.nc", tmp_path / "merged.nc")
+    identical_files(tmp_path / "whole.nc", tmp_path / "merged.nc")
     total_bytes = sum(v.nbytes for v in whole.variables.values())
     assert peak < chunk_bytes, (peak, chunk_bytes)
     assert chunk_bytes < total_bytes / 5
@@ -247,7 +220,7 @@ def test_scheduler_address_with_threaded_workers(small, tmp_path):
                       dashboard_address=None) as cluster:
         res = run_mission(small.mission, out=tmp_path / "s.nc", cache_dir=small.cache,
                           date_created=DATE, scheduler=cluster.scheduler_address)
-    _identical_files(res.path, small.serial.path)
+    identical_files(res.path, small.serial.path)
     assert dask.config.get("scheduler", None) is None
 
 
@@ -342,7 +315,7 @@ def test_kill_and_resume(small, tmp_path):
     assert proc.returncode == 0, stderr
     assert "chirplidar run: 3000 shots" in stdout
     assert not chunks.exists()
-    _identical_files(out, serial.path)
+    identical_files(out, serial.path)
 
 
 def test_existing_chunk_dir_needs_resume_or_overwrite(small, tmp_path, capsys):
@@ -361,7 +334,7 @@ def test_existing_chunk_dir_needs_resume_or_overwrite(small, tmp_path, capsys):
     # --overwrite discards them (and the temp results file of that run) and runs
     (tmp_path / ".x.nc.killed.tmp").write_bytes(b"CDF partial")
     res = run_mission(mission, out=out, cache_dir=cache, overwrite=True, date_created=DATE)
-    _identical_files(res.path, serial.path)
+    identical_files(res.path, serial.path)
     assert sorted(os.listdir(tmp_path)) == ["x.nc"]
 
 
@@ -484,7 +457,7 @@ def test_resume_recomputes_bad_chunks_and_merges_none(small, tmp_path, monkeypat
         assert any(re.search(rf"chunk {k} \(.*chunk_0000{k}\.nc\): .*computing it again", m)
                    for m in named), named
     assert not chunks.exists()
-    _identical_files(res.path, small.serial.path)
+    identical_files(res.path, small.serial.path)
 
 
 def test_a_chunk_damaged_after_its_seal_is_never_merged(small, tmp_path, monkeypatch):
@@ -534,7 +507,7 @@ def test_one_run_per_output(small, tmp_path, capsys):
         res = run_mission(small.mission, out=out, cache_dir=small.cache, overwrite=True,
                           date_created=DATE)
     assert not lock.exists()
-    _identical_files(res.path, small.serial.path)
+    identical_files(res.path, small.serial.path)
 
 
 def test_output_that_is_a_directory_is_refused_before_any_work(small, tmp_path, capsys):
