@@ -40,6 +40,7 @@ bench: install
 	$(BIN)/chirplidar bench --what shot
 	$(BIN)/chirplidar bench --what raycast
 	$(BIN)/chirplidar bench --what tiers
+	$(BIN)/chirplidar bench --what survey
 	$(BIN)/chirplidar bench --what scale --repeats 21
 	$(BIN)/chirplidar bench --what campaign
 	$(BIN)/chirplidar bench --what accuracy --out outputs
