@@ -206,7 +206,13 @@ def test_streamed_quantiles_equal_in_memory_ones(tmp_path):
     streamed = point_metrics(res.path, detection_threshold_db=10.0, budget_bytes=0,
                              obs_block=7)
     in_memory = point_metrics(res.path, detection_threshold_db=10.0)
-    assert streamed == in_memory
+    # Quantiles and counts: the same bits. The sums (range RMS, the height spread's Chan
+    # update) are accumulated over other blocks, so in another order: equal to rounding.
+    sums = ("range_rms_m", "height_precision_m")
+    assert {k: v for k, v in streamed.items() if k not in sums} == \
+        {k: v for k, v in in_memory.items() if k not in sums}
+    for k in sums:
+        assert streamed[k] == pytest.approx(in_memory[k], rel=1e-12)
     ds = read_netcdf(res.path)
     det = ds["detected"].values.ravel()
     snr = ds["snr_db"].values.ravel()[det != 2]
