@@ -117,7 +117,7 @@ def interp_table(x_nodes, y_nodes, table, x, y):
 
 def range_nodes(r_lo: float, r_hi: float) -> np.ndarray:
     """The table's range nodes covering [r_lo, r_hi]: r_k = exp(k x _RANGE_STEP) on one lattice
-    for every chunk of a run (at most 33 nodes: every s-th lattice node, k a multiple of s), so
+    for every chunk of a run (at most 34 nodes: every s-th lattice node, k a multiple of s), so
     that neighbouring chunks share nodes and :func:`node_snr` evaluates each once per process."""
     if r_hi <= r_lo:
         return np.array([r_lo])
