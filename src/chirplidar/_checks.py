@@ -105,6 +105,16 @@ def count(name: str, value) -> int:
     return int(value)
 
 
+def integer(name: str, value, minimum: int) -> int:
+    """An integer >= ``minimum`` (grid sizes, sample counts, batches, pixels)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    v = int(value)
+    if v < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {v}")
+    return v
+
+
 def generator(name: str, value) -> np.random.Generator:
     if not isinstance(value, np.random.Generator):
         raise ValueError(

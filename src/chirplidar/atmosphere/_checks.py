@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import numbers
 
 import numpy as np
 
 from .._checks import (
     generator,
+    integer,
     non_negative,
     non_negative_array,
     positive,
@@ -39,16 +39,6 @@ def outer_scale(name: str, value) -> float:
     v = real_scalar(name, value, allow_inf=True)
     if not v > 0.0:
         raise ValueError(f"{name} must be > 0 (numpy.inf for Kolmogorov), got {v!r}")
-    return v
-
-
-def integer(name: str, value, minimum: int) -> int:
-    """An integer >= ``minimum`` (grid sizes, sample counts, levels)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    v = int(value)
-    if v < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {v}")
     return v
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy.special import erf, sici
 
-from .._checks import generator
+from .._checks import generator, integer
 from ._checks import finite_array, grid_size, obstruction_ratio, positive, square_field
 from .coupling import fiber_mode_pupil
 from .diffraction import focal_spot_diameter_m
@@ -38,14 +38,6 @@ from .pupil import PupilGrid
 
 _ALIAS_RADII = 10.0  # wrap-around of a Gaussian correlation at >= 10 rho: exp(-50), negligible
 _MAX_ELEMENTS = 2**21  # complex target-plane samples generated at once (32 MiB)
-
-
-def _batch(value) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"batch must be an integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"batch must be >= 1, got {value}")
-    return int(value)
 
 
 def _grid(value) -> PupilGrid:
@@ -136,7 +128,7 @@ def speckle_pupil_fields(
     grid = _grid(grid)
     d = positive("aperture_m", aperture_m)
     rho = positive("coherence_radius_m", coherence_radius_m)
-    rng, batch = generator("rng", rng), _batch(batch)
+    rng, batch = generator("rng", rng), integer("batch", batch, 1)
     n = grid.n
     dx = d / n
     size = sfft.next_fast_len(max(2 * n, int(np.ceil(np.sqrt(2.0) * n + _ALIAS_RADII * rho / dx))))
@@ -167,7 +159,7 @@ def monostatic_speckle_pupil_fields(
     with R, and mu does not depend on R or lambda. Other arguments as ``speckle_pupil_fields``.
     """
     grid = _grid(grid)
-    rng, batch = generator("rng", rng), _batch(batch)
+    rng, batch = generator("rng", rng), integer("batch", batch, 1)
     n = grid.n
     tx = grid.weights * fiber_mode_pupil(grid, beta)
     intensity = np.abs(np.fft.fft2(tx, s=(2 * n, 2 * n))) ** 2

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._checks import finite_array, non_negative_array, positive, real_scalar
+from .._checks import finite_array, integer, non_negative_array, positive, real_scalar
 from ..units import ELEMENTARY_CHARGE_C
 
 
@@ -45,14 +45,6 @@ class PixelFields:
     beat_w: np.ndarray
     signal_power_w: np.ndarray
     lo_power_w: np.ndarray
-
-
-def _pixel_count(n_pixels) -> int:
-    if isinstance(n_pixels, (bool, np.bool_)) or not isinstance(n_pixels, (int, np.integer)):
-        raise ValueError(f"n_pixels must be a positive integer, got {n_pixels!r}")
-    if n_pixels < 1:
-        raise ValueError(f"n_pixels must be >= 1 (an FPA of zero pixels), got {n_pixels}")
-    return int(n_pixels)
 
 
 def _focal_grid(u_m, n: int) -> tuple[np.ndarray, float]:
@@ -72,7 +64,7 @@ def pixel_weights(u_m, n_pixels: int, pitch_m: float, fill_factor: float) -> np.
     area f p^2); grid cell j spans u_j +- du / 2, the field taken constant over it, so
     int_pixel F dA = sum_yx W[i, y] W[l, x] F[y, x] exactly for that piecewise-constant field.
     """
-    n_pix = _pixel_count(n_pixels)
+    n_pix = integer("n_pixels", n_pixels, 1)
     p = positive("pitch_m", pitch_m)
     f = real_scalar("fill_factor", fill_factor)
     if not 0.0 < f <= 1.0:
@@ -239,7 +231,7 @@ def estimated_mrc_factor(total_snr, pixels: int):
     :func:`combining_gains` and :func:`combined_snr` (tests/test_fpa.py): 1 % high at G / M = 1.
     """
     g = non_negative_array("total_snr", total_snr)
-    m = _pixel_count(pixels)
+    m = integer("pixels", pixels, 1)
     return (g + 1.0) / (g + m)
 
 
