@@ -159,3 +159,45 @@ def test_local_rays_exact_mode_for_aircraft():
     drop = (5000.0 * np.tan(th)) ** 2 / (2 * R * np.cos(th))
     assert r[0] - r_flat[0] == pytest.approx(drop, rel=0.03)
     assert abs(r[1] - r_flat[1]) < 1e-6
+
+
+@pytest.mark.parametrize("epsg, x0, y0", [(3413, -2.0e5, -2.5e6), (3031, 1.0e6, -0.5e6),
+                                          (3031, -1.5e6, 0.3e6)])
+def test_grid_axes_match_pyproj(epsg, x0, y0):
+    # References (pyproj, independent of the closed form): PROJ's meridian convergence
+    # (Proj.get_factors) for the angle, and the grid axes as pyproj central differences of +-1 m
+    # in x and y made orthogonal to the ellipsoid normal (their own error: ~1 m / R ~ 2e-7).
+    from pyproj import Proj
+
+    rng = np.random.default_rng(3)
+    o = np.column_stack([x0 + rng.uniform(-5e4, 5e4, 40), y0 + rng.uniform(-5e4, 5e4, 40),
+                         rng.uniform(-100.0, 4000.0, 40)])
+    lat, lon, _ = F.projected_to_geodetic(o[:, 0], o[:, 1], o[:, 2], epsg)
+    c, s = F.grid_convergence(lon, epsg)
+    gamma_ref = Proj(f"EPSG:{epsg}").get_factors(lon, lat).meridian_convergence
+    assert np.allclose(np.degrees(np.arctan2(s, c)), gamma_ref, atol=1e-9)
+    o_e, ex, ey, up = F.grid_axes_ecef(o, epsg)
+    assert np.allclose(o_e, F.projected_to_ecef(o, epsg), atol=1e-6)
+    p = F.projected_to_ecef(np.stack([o + [1, 0, 0], o - [1, 0, 0], o + [0, 1, 0],
+                                      o - [0, 1, 0]]), epsg)
+    for axis, v in ((ex, p[0] - p[1]), (ey, p[2] - p[3])):
+        v = v - np.sum(v * up, axis=-1, keepdims=True) * up
+        assert np.allclose(axis, v / np.linalg.norm(v, axis=-1, keepdims=True), atol=2e-7)
+    assert np.allclose(np.sum(ex * ey, axis=-1), 0.0, atol=1e-14)
+    assert np.allclose(np.cross(ex, ey), up, atol=1e-14)
+
+
+def test_height_crossing_meets_its_height_for_steep_and_grazing_rays():
+    # Reference: pyproj's geodetic height of the returned point equals the asked height (the
+    # Newton iteration stops once its own error bound is below 10 um).
+    o = F.projected_to_ecef(np.array([[-2.0e5, -2.1e6, 6000.0]] * 4), 3413)
+    lat, lon, _ = F.ecef_to_geodetic(o[:, 0], o[:, 1], o[:, 2])
+    enu = F.enu_basis(lat, lon)[0]
+    d = []
+    for th in np.radians([0.0, 30.0, 70.0, 85.0]):
+        v = np.sin(th) * enu[0] - np.cos(th) * enu[2]
+        d.append(v / np.linalg.norm(v))
+    for h in (1000.0, -50.0, 5999.0):
+        s = F.ray_ellipsoid_distance_m(o, np.array(d), h)
+        p = o + s[:, None] * np.array(d)
+        assert np.allclose(F.ecef_to_geodetic(p[:, 0], p[:, 1], p[:, 2])[2], h, atol=1e-5)

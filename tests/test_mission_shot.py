@@ -94,7 +94,9 @@ def test_measure_rf_outputs_unchanged_by_the_refactor():
     """``measure_rf`` of the short stretch's chunk, against values recorded by running the code
     before the per-shot set-up moved into ``measure.rf_shot_setup`` (git HEAD 6e814b3's
     ``mission/measure.py``, same call; float64 reprs). Exact on the recording machine; a fresh
-    install's numpy/scipy round differently in the last bits, hence rtol 1e-9."""
+    install's numpy/scipy round differently in the last bits, and issue 19's geometry (grid
+    axes in closed form, one pyproj pipeline per conversion) moves ranges by < 4 nm, hence
+    rtol 1e-8."""
     before = {
         "snr_db": [11.385000516712358, 10.139941709483368, 11.034932497008533, 13.314175778847199],
         "range_measured": [120.06877137370203, 120.27916859180908, 120.18651676009112,
@@ -112,7 +114,7 @@ def test_measure_rf_outputs_unchanged_by_the_refactor():
                                  cfg.survey.subrays_per_beam)
     out = measure.measure_rf(cfg, scene, geom, seq)
     for key, values in before.items():
-        np.testing.assert_allclose(out[key][:, 0], values, rtol=1e-9, atol=0, err_msg=key)
+        np.testing.assert_allclose(out[key][:, 0], values, rtol=1e-8, atol=0, err_msg=key)
     assert np.array_equal(out["detected"][:, 0], [1, 1, 1, 1])
 
 

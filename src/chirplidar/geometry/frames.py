@@ -78,6 +78,7 @@ __all__ = [
     "geodetic_to_ecef",
     "geodetic_to_projected",
     "grid_axes_ecef",
+    "grid_convergence",
     "local_up_ecef",
     "projected_to_ecef",
     "projected_to_geodetic",
@@ -95,6 +96,9 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 
 _ECEF = 4978
 _GEODETIC = 4979
+#: The smallest radius of curvature of the WGS-84 ellipsoid, b^2 / a (meridian at the equator),
+#: less 30 km: it bounds the curvature of every surface of constant height above -30 km.
+_MIN_CURVATURE_RADIUS_M = WGS84_B_M**2 / WGS84_A_M - 30e3
 
 
 def checked_epsg(epsg) -> int:
@@ -172,17 +176,17 @@ def ecef_to_geodetic(x, y, z):
 
 
 def projected_to_ecef(xyz_m, epsg) -> np.ndarray:
-    """Scene-frame points ``(..., 3)`` -> ECEF points ``(..., 3)`` [m]."""
+    """Scene-frame points ``(..., 3)`` -> ECEF points ``(..., 3)`` [m] (one pyproj pipeline)."""
+    code = checked_epsg(epsg)
     p = _xyz("xyz_m", xyz_m)
-    lat, lon, h = projected_to_geodetic(p[..., 0], p[..., 1], p[..., 2], epsg)
-    return np.stack(geodetic_to_ecef(lat, lon, h), axis=-1)
+    return np.stack(_transform(code, _ECEF, p[..., 0], p[..., 1], p[..., 2]), axis=-1)
 
 
 def ecef_to_projected(xyz_ecef_m, epsg) -> np.ndarray:
-    """ECEF points ``(..., 3)`` -> scene-frame points ``(..., 3)`` [m]."""
+    """ECEF points ``(..., 3)`` -> scene-frame points ``(..., 3)`` [m] (one pyproj pipeline)."""
+    code = checked_epsg(epsg)
     p = _xyz("xyz_ecef_m", xyz_ecef_m)
-    lat, lon, h = ecef_to_geodetic(p[..., 0], p[..., 1], p[..., 2])
-    return np.stack(geodetic_to_projected(lat, lon, h, epsg), axis=-1)
+    return np.stack(_transform(_ECEF, code, p[..., 0], p[..., 1], p[..., 2]), axis=-1)
 
 
 def _xyz(name, value) -> np.ndarray:
@@ -275,8 +279,14 @@ def ray_ellipsoid_distance_m(origin_ecef, direction_ecef, height_m=0.0) -> np.nd
             rate = np.sum(d * up, axis=-1)  # dh/ds
             with np.errstate(invalid="ignore", divide="ignore"):
                 step = np.where(ok & (np.abs(rate) > 1e-12), (h - hh) / rate, 0.0)
+                # Newton's error after this step is at most |h''| step^2 / (2 |h'|), and the
+                # height's second derivative along a line is at most the largest curvature of
+                # the ellipsoid, 1 / _MIN_CURVATURE_RADIUS_M: below 10 um the step is final.
+                after = np.where(
+                    ok, step * step / (2.0 * _MIN_CURVATURE_RADIUS_M * np.abs(rate)), 0.0
+                )
             s = s + step
-            if np.all(np.abs(step[ok]) < 1e-4):
+            if np.all(after < 1e-5):
                 break
     return s
 
@@ -337,7 +347,7 @@ def _ray_arrays(origin_name: str, origin, direction_name: str, direction):
 
 
 def rays_projected_from_ecef(
-    origin_ecef, direction_ecef, epsg, *, target_height_m, entry_height_m=None
+    origin_ecef, direction_ecef, epsg, *, target_height_m, entry_height_m=None, origin_m=None
 ) -> ProjectedRays:
     """Convert ECEF rays (e.g. from a satellite) into scene-frame rays.
 
@@ -347,6 +357,9 @@ def rays_projected_from_ecef(
     entry_height_m : ellipsoidal height [m] the scene-frame origin is moved to (for origins above
         it); choose it just above the highest terrain. ``None`` keeps the ECEF origin (fine for
         aircraft altitudes, see the module docstring for the error at 500 km).
+    origin_m : optional scene-frame coordinates of the origins, when the caller has them (the
+        same points as ``origin_ecef``): their heights and, for rays whose chord starts at the
+        origin, the chord's first end are taken from them instead of being converted.
 
     The scene-frame direction is the chord from the entry point to the target point (both
     converted exactly with pyproj); ``range_offset_m`` is the true ECEF distance from the origin to
@@ -359,50 +372,78 @@ def rays_projected_from_ecef(
     shape = o.shape[:-1]
     h_t = _checks.real_scalar("target_height_m", target_height_m)
     s_target = ray_ellipsoid_distance_m(o, d, np.full(shape, h_t))
-    if entry_height_m is None:
-        s_entry = np.zeros(shape)
-    else:
+    q0 = None if origin_m is None else np.broadcast_to(_xyz("origin_m", origin_m), o.shape)
+    s_entry = np.zeros(shape)
+    if entry_height_m is not None:
         h_e = _checks.real_scalar("entry_height_m", entry_height_m)
         if h_e <= h_t:
             raise ValueError(f"entry_height_m ({h_e}) must be above target_height_m ({h_t})")
-        _, _, h0 = ecef_to_geodetic(o[..., 0], o[..., 1], o[..., 2])
-        s_e = ray_ellipsoid_distance_m(o, d, np.full(shape, h_e))
-        s_entry = np.where(h0 > h_e, s_e, 0.0)
+        h0 = ecef_to_geodetic(o[..., 0], o[..., 1], o[..., 2])[2] if q0 is None else q0[..., 2]
+        above = h0 > h_e
+        if np.any(above):
+            s_entry[above] = ray_ellipsoid_distance_m(o[above], d[above], h_e)
     valid = np.isfinite(s_target) & np.isfinite(s_entry) & (s_target > s_entry)
     s0 = np.where(valid, s_entry, 0.0)
     s1 = np.where(valid, s_target, 1.0)
-    p0 = o + s0[..., None] * d
-    p1 = o + s1[..., None] * d
-    q = ecef_to_projected(np.stack([p0, p1], axis=0), code)
-    chord = q[1] - q[0]
+    q1 = ecef_to_projected(o + s1[..., None] * d, code)
+    if q0 is None:
+        q0 = ecef_to_projected(o + s0[..., None] * d, code)
+    else:  # chords that start at the origin keep the caller's coordinates
+        q0 = q0.copy()
+        moved = s0 != 0.0
+        if np.any(moved):
+            q0[moved] = ecef_to_projected(o[moved] + s0[moved, None] * d[moved], code)
+    chord = q1 - q0
     length = np.linalg.norm(chord, axis=-1)
     up = np.array([0.0, 0.0, 1.0])
     v = valid[..., None]
     direction = np.where(v, chord / np.where(length > 0, length, 1.0)[..., None], up)
     mpu = np.where(valid, (s1 - s0) / np.where(length > 0, length, 1.0), 1.0)
-    return ProjectedRays(q[0], direction, np.where(valid, s0, 0.0), mpu, valid)
+    return ProjectedRays(q0, direction, np.where(valid, s0, 0.0), mpu, valid)
+
+
+@cache
+def _polar_aspect(epsg: int) -> tuple[float, float]:
+    """(central meridian [deg], +1 north / -1 south pole) of a polar stereographic scene frame,
+    read from pyproj's definition of the CRS."""
+    operation = _proj(epsg).crs.coordinate_operation
+    if operation is None:
+        raise ValueError(f"EPSG:{epsg} has no projection parameters")
+    params = {p.name: p.value for p in operation.params}
+    return (
+        float(params["Longitude of origin"]),
+        float(np.sign(params["Latitude of standard parallel"])),
+    )
+
+
+def grid_convergence(lon, epsg) -> tuple[np.ndarray, np.ndarray]:
+    """(cos, sin) of the angle from true north to grid north at longitudes ``lon`` [deg].
+
+    A polar stereographic grid's meridians are straight lines through the pole (Snyder 1987,
+    *Map Projections: A Working Manual*, eqs. 21-30, 21-31), so grid north is true north turned
+    by ``s (lon - lon_0)``, clockwise positive; ``s = +1`` for a north, ``-1`` for a south
+    polar aspect. The grid axes in true east, north components are then ``x = (cos, -sin)``,
+    ``y = (sin, cos)``; conformal, so they are exactly orthogonal.
+    """
+    lon0, sign = _polar_aspect(checked_epsg(epsg))
+    gamma = sign * np.radians(np.asarray(lon, dtype=float) - lon0)
+    return np.cos(gamma), np.sin(gamma)
 
 
 def grid_axes_ecef(origin_m, epsg):
     """ECEF position and unit grid-x, grid-y and up axes at scene-frame points ``(..., 3)``.
 
-    Grid axes by central differences of +-1 m in x and y (pyproj), made orthogonal to the
-    ellipsoid normal; the projection is conformal so they are orthogonal to each other to
-    ~1e-9. Returns ``(origin_ecef, ex, ey, up)``, each ``(..., 3)``.
+    The position is one pyproj conversion; the axes are the local east and north turned by the
+    grid convergence (:func:`grid_convergence`), orthogonal to the ellipsoid normal and to each
+    other to rounding. Returns ``(origin_ecef, ex, ey, up)``, each ``(..., 3)``.
     """
     code = checked_epsg(epsg)
     o = _xyz("origin_m", origin_m)
-    ex_, ey_ = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
-    pts = projected_to_ecef(np.stack([o, o + ex_, o - ex_, o + ey_, o - ey_]), code)
-    lat, lon, _ = ecef_to_geodetic(pts[0][..., 0], pts[0][..., 1], pts[0][..., 2])
-    up = local_up_ecef(lat, lon)
-    axes = []
-    for v in (pts[1] - pts[2], pts[3] - pts[4]):
-        v = v - np.sum(v * up, axis=-1, keepdims=True) * up
-        axes.append(v / np.linalg.norm(v, axis=-1, keepdims=True))
-    ey = axes[1] - np.sum(axes[1] * axes[0], axis=-1, keepdims=True) * axes[0]
-    ey = ey / np.linalg.norm(ey, axis=-1, keepdims=True)
-    return pts[0], axes[0], ey, up
+    lat, lon, h = projected_to_geodetic(o[..., 0], o[..., 1], o[..., 2], code)
+    origin_ecef = np.stack(geodetic_to_ecef(lat, lon, h), axis=-1)
+    east, north, up = np.moveaxis(enu_basis(lat, lon), -2, 0)
+    c, s = (a[..., None] for a in grid_convergence(lon, code))
+    return origin_ecef, c * east - s * north, s * east + c * north, up
 
 
 def rays_projected_local(
@@ -430,7 +471,12 @@ def rays_projected_local(
         d_ecef = d[..., :1] * ex + d[..., 1:2] * ey + d[..., 2:] * up
         d_ecef = d_ecef / np.linalg.norm(d_ecef, axis=-1, keepdims=True)
         return rays_projected_from_ecef(
-            o_ecef, d_ecef, code, target_height_m=target_height_m, entry_height_m=entry_height_m
+            o_ecef,
+            d_ecef,
+            code,
+            target_height_m=target_height_m,
+            entry_height_m=entry_height_m,
+            origin_m=o,
         )
     k = scale_factor(o[..., 0], o[..., 1], code)
     dp = np.concatenate([d[..., :2] * k[..., None], d[..., 2:]], axis=-1)

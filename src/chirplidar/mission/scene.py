@@ -145,7 +145,6 @@ class Scene:
         wl = float(wavelength_m)
         if not (np.isfinite(wl) and wl > 0):
             raise ValueError(f"wavelength_m must be a finite positive scalar, got {wavelength_m!r}")
-        used = set(np.unique(self.terrain.face_materials).tolist())
         out = np.full(len(self.material_names), np.nan)
         for code, name in enumerate(self.material_names):
             over = self.config.materials.get(name)
@@ -155,7 +154,7 @@ class Scene:
             try:
                 out[code] = float(MATERIALS[name].reflectivity_at(wl))
             except ValueError as exc:
-                if code in used:
+                if np.any(self.terrain.face_materials == code):
                     raise ValueError(f"scene {self.name!r}: terrain material {name!r}: {exc}; "
                                      f"override it with [materials.{name}] reflectivity") from None
         return out

@@ -380,13 +380,19 @@ def _angles(path_frame: str, pos, d, epsg, axes=None):
     (``axes``: the positions' ``frames.grid_axes_ecef`` when already computed)."""
     if path_frame == "ecef":
         lat, lon, _ = frames.ecef_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2])
-        d_ecef = d
+        enu = frames.enu_basis(lat, lon)  # (n, 3, 3) rows east, north, up
+        e, nth, u = (np.einsum("nbj,nj->nb", d, enu[:, i]) for i in range(3))
     else:
-        o_ecef, ex, ey, up = frames.grid_axes_ecef(pos, epsg) if axes is None else axes
-        d_ecef = d[..., :1] * ex[:, None] + d[..., 1:2] * ey[:, None] + d[..., 2:] * up[:, None]
-        lat, lon, _ = frames.ecef_to_geodetic(o_ecef[:, 0], o_ecef[:, 1], o_ecef[:, 2])
-    enu = frames.enu_basis(lat, lon)  # (n, 3, 3) rows east, north, up
-    e, nth, u = (np.einsum("nbj,nj->nb", d_ecef, enu[:, i]) for i in range(3))
+        # d is in the true local frame of grid x, grid y and up: east and north are its
+        # horizontal part turned by the grid convergence (grid north = true north + gamma).
+        if axes is None:
+            lon = frames.projected_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2], epsg)[1]
+        else:   # the ellipsoid normal's longitude is the geodetic longitude
+            lon = np.degrees(np.arctan2(axes[3][:, 1], axes[3][:, 0]))
+        c, s = (a[:, None] for a in frames.grid_convergence(lon, epsg))
+        e = c * d[..., 0] + s * d[..., 1]
+        nth = -s * d[..., 0] + c * d[..., 1]
+        u = d[..., 2]
     return np.arccos(np.clip(-u, -1.0, 1.0)), np.mod(np.arctan2(e, nth), 2 * np.pi)
 
 
