@@ -122,10 +122,10 @@ def _fail_merge_append(monkeypatch, make_error, index=3, chunk_shots=500):
     """The results file's append of chunk ``index`` fails (h5py's errors carry no file name)."""
     real = merge._copy_hdf5_variable
 
-    def failing(src, dst, axis, start, last):
+    def failing(src, dst, axis, start, last, record=None):
         if start == index * chunk_shots:
             raise make_error(None)
-        return real(src, dst, axis, start, last)
+        return real(src, dst, axis, start, last, record)
 
     monkeypatch.setattr(merge, "_copy_hdf5_variable", failing)
 

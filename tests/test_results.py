@@ -16,6 +16,7 @@ from chirplidar.mission import (
     read_netcdf,
     write_netcdf,
 )
+from chirplidar.mission.results.schema import COMPRESSION_LEVEL
 
 MATERIALS = {0: "snow", 1: "firn", 2: "bare ice", 3: "water"}
 CONFIG = '[mission]\nname = "test"\nepsg = 3413\n[beam]\ncount = 3\n'
@@ -92,7 +93,8 @@ def test_cf_structure_and_attributes(tmp_path):
         coords = set(nc["h_li"].coordinates.split())
         assert {"time", "latitude", "longitude", "beam", "x", "y"} <= coords
         assert np.isnan(nc["h_li"]._FillValue)
-        assert nc["h_li"].filters()["zlib"] and nc["h_li"].filters()["complevel"] == 4
+        assert nc["h_li"].filters()["zlib"] and nc["h_li"].filters()["complevel"] == \
+            COMPRESSION_LEVEL
         assert "_FillValue" not in nc["detected"].ncattrs()
         assert nc.featureType == "trajectory"
 
@@ -244,10 +246,10 @@ def _spy_copies(monkeypatch):
     calls = []
     copy = merge._copy_hdf5_variable
 
-    def spy(src, dst, axis, start, last):
+    def spy(src, dst, axis, start, last, record=None):
         import h5py
 
-        out = copy(src, dst, axis, start, last)
+        out = copy(src, dst, axis, start, last, record)
         calls.append((h5py.h5i.get_name(src[0]).decode().lstrip("/"), start, out is None))
         return out
 

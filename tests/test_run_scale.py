@@ -95,8 +95,12 @@ def test_chunked_run_equals_in_memory_path(small, tmp_path):
 
 
 def test_summary_streamed_beyond_its_memory_budget(small, tmp_path):
-    """Past its memory budget the summary is streamed over the chunk files (radix-select order
-    statistics): counts, median and 95th percentile still exactly numpy's."""
+    """Past its memory budget the summary is streamed over the chunk files, or over a run's
+    spill files (radix-select order statistics): counts, median and 95th percentile still
+    exactly numpy's."""
+    import netCDF4
+
+    from chirplidar.mission.summary import SUMMARY_VARIABLES, SummaryPass
     from chirplidar.mission.summary import order_statistics as _order_statistics
     from chirplidar.mission.summary import summary_of_chunks as _summary_of_chunks
 
@@ -108,6 +112,24 @@ def test_summary_streamed_beyond_its_memory_budget(small, tmp_path):
     ref = summarise(ds, "x.nc", 0.0)
     for budget in (10**9, 0):   # in memory, streamed
         got = _summary_of_chunks(files, "x.nc", "link", 2026, 1, 0.0, budget_bytes=budget)
+        assert {k: got[k] for k in ("shots", "detected", "median_snr_db",
+                                    "range_error_p95_abs_m")} == \
+            {k: ref[k] for k in ("shots", "detected", "median_snr_db", "range_error_p95_abs_m")}
+        for key in ("range_error_mean_m", "range_error_std_m", "range_error_rms_m"):
+            assert got[key] == pytest.approx(ref[key], rel=1e-12)
+    # A run's first pass spills the detected shots past its budget (the later passes read the
+    # spill files, not the chunk files): the same summary, in blocks of the budget.
+    for budget in (0, 16 * 100):
+        first = SummaryPass(1, budget, spill_dir=tmp_path)
+        for f in files:
+            with netCDF4.Dataset(f) as src:
+                for k in SUMMARY_VARIABLES:
+                    src[k].set_auto_maskandscale(False)
+                first.add(*(src[k][...] for k in SUMMARY_VARIABLES))
+        assert first.spilled and (tmp_path / "summary_snr.f8").stat().st_size == 8 * ref[
+            "detected"]
+        got = _summary_of_chunks([], "x.nc", "link", 2026, 1, 0.0, budget_bytes=budget,
+                                 first_pass=first)
         assert {k: got[k] for k in ("shots", "detected", "median_snr_db",
                                     "range_error_p95_abs_m")} == \
             {k: ref[k] for k in ("shots", "detected", "median_snr_db", "range_error_p95_abs_m")}
@@ -603,6 +625,35 @@ def test_the_results_file_is_read_back_before_the_chunks_go(small, tmp_path):
         verify_results_file(cut, 3000, 1, block_obs=500)
     with pytest.raises(ValueError, match="2999 expected"):
         verify_results_file(small.serial.path, 2999, 1)
+
+
+def test_the_read_back_of_copied_chunks_compares_their_stored_bytes(small, tmp_path):
+    """A run verifies the variables its merge copied as stored by their HDF5 chunks' digests
+    (no decompression): the good file passes with its own digests; the copy with 64 bytes
+    inverted in its data fails with one line naming the file and the variable; a missing
+    chunk fails too."""
+    import h5py
+
+    from chirplidar.mission.results import verify_results_file
+    from chirplidar.mission.results.merge import chunk_digest
+
+    with h5py.File(small.serial.path, "r") as f:
+        stored = {name: {tuple(off): chunk_digest(var.id.read_direct_chunk(off)[1])
+                         for off in (var.id.get_chunk_info(k).chunk_offset
+                                     for k in range(var.id.get_num_chunks()))}
+                  for name, var in f.items() if isinstance(var, h5py.Dataset)
+                  and var.compression == "gzip"}
+    assert len(stored) > 10
+    verify_results_file(small.serial.path, 3000, 1, stored_chunks=stored)
+    damaged = tmp_path / "damaged.nc"
+    shutil.copy(small.serial.path, damaged)
+    _flip(damaged, damaged.stat().st_size // 2)
+    with pytest.raises(ValueError, match=re.escape(str(damaged)) + r".*variable \w+"):
+        verify_results_file(damaged, 3000, 1, stored_chunks=stored)
+    name = next(iter(stored))
+    extra = {**stored, name: {**stored[name], (0, 10**6): b"x"}}
+    with pytest.raises(ValueError, match=f"variable {name}: stored chunks at"):
+        verify_results_file(small.serial.path, 3000, 1, stored_chunks=extra)
 
 
 def test_scheduler_without_workers_times_out_with_a_message(small, tmp_path, monkeypatch):

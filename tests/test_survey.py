@@ -381,3 +381,24 @@ def test_scene_keys_in_the_mission(tmp_path):
                         overrides=["scene.terrain.flat.height_m=250.0"]).dataset
     lo, hi = result_terrain(moved).bounds
     assert (lo[2], hi[2]) == pytest.approx((250.0, 250.0))
+
+
+def test_shot_clock_is_the_shot_times_without_holding_them():
+    # Reference: shot_times' array (start + i / prf), bit for bit, for every kind of index.
+    from chirplidar.geometry.pointing import ShotClock, shot_times
+
+    t = shot_times(3.5, 1000.0, 9433.96)
+    clock = ShotClock.between(3.5, 1000.0, 9433.96)
+    assert clock.size == len(clock) == t.size and clock.shape == t.shape
+    assert np.array_equal(np.asarray(clock), t)
+    for key in (slice(0, 100), slice(5000, None), slice(-7, None), slice(10, 2000, 3),
+                slice(0, 0), np.array([0, 17, t.size - 1]), t > 500.0):
+        assert np.array_equal(clock[key], t[key])
+    assert clock[0] == t[0] and clock[-1] == t[-1] and clock[12345] == t[12345]
+    with pytest.raises(IndexError):
+        clock[t.size]
+    with pytest.raises(IndexError):
+        clock[np.array([t.size])]
+    assert ShotClock.between(2.0, 2.0, 100.0).size == 0 == shot_times(2.0, 2.0, 100.0).size
+    with pytest.raises(ValueError, match="stop_s"):
+        ShotClock.between(2.0, 1.0, 100.0)

@@ -120,17 +120,99 @@ def format_scale(res: dict) -> str:
 
 
 CAMPAIGN_NAME = "icesat2_campaign.toml"
+RUN_NAME = "greenland_uav_1h.toml"
+
+
+class PeakMemory:
+    """The peak of the resident memory of this process and all its descendants together (a
+    local cluster's workers included), sampled every ``interval_s`` in a thread while the
+    ``with`` block runs; ``peak_bytes`` and the peak of each process in ``per_process``."""
+
+    def __init__(self, interval_s: float = 0.2):
+        import threading
+
+        self.interval_s = interval_s
+        self.peak_bytes = 0
+        self.per_process: dict[int, int] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _sample(self) -> None:
+        import psutil
+
+        me = psutil.Process()
+        while True:
+            total = 0
+            for proc in [me, *me.children(recursive=True)]:
+                try:
+                    rss = proc.memory_info().rss
+                except psutil.Error:   # ended between the listing and the reading
+                    continue
+                total += rss
+                self.per_process[proc.pid] = max(self.per_process.get(proc.pid, 0), rss)
+            self.peak_bytes = max(self.peak_bytes, total)
+            if self._stop.wait(self.interval_s):
+                return
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        return False
+
+
+def bench_run(mission=None, overrides=(), *, workers: int = 2, progress=None) -> dict:
+    """One whole run of a mission (default ``missions/greenland_uav_1h.toml``, the one-hour
+    flight) on ``workers`` local Dask workers (1: serially), from the call to the merged,
+    verified file; the terrain cache is filled and the modules imported by an untimed
+    preparation first. Returns shots, beams, chunks, seconds, shots_per_s, the peak resident
+    memory of the run's processes together (``peak_memory_mb``, sampled every 0.2 s; the
+    largest single process in ``largest_process_mb``), the file's size and the run's parts."""
+    from ..mission.preflight import prepare
+    from ..mission.runner import run_mission
+    from ..mission_files import default_mission_path
+
+    path = Path(mission) if mission is not None else default_mission_path(RUN_NAME)
+    _, _, plan = prepare(path, overrides=list(overrides))
+    import dask.distributed  # noqa: F401  (untimed, as in bench_scale)
+    import h5py  # noqa: F401
+    if progress is not None:
+        progress(f"{path.name}: {plan.n_shots} shots x {plan.beams.n_beams} beam(s) in "
+                 f"{plan.n_chunks} chunks on {workers} worker(s) ...")
+    with tempfile.TemporaryDirectory(prefix="chirplidar-run-") as tmp:
+        out = Path(tmp) / "run.nc"
+        with PeakMemory() as memory:
+            t0 = time.perf_counter()
+            res = run_mission(path, overrides=list(overrides), out=out, date_created=_DATE,
+                              workers=workers if workers > 1 else None)
+            seconds = time.perf_counter() - t0
+        file_mb = out.stat().st_size / 1e6
+    return {"mission": str(path), "shots": int(plan.n_shots), "beams": int(plan.beams.n_beams),
+            "chunks": int(plan.n_chunks), "workers": int(workers), "seconds": seconds,
+            "shots_per_s": plan.n_shots / seconds, "peak_memory_mb": memory.peak_bytes / 1e6,
+            "largest_process_mb": max(memory.per_process.values(), default=0) / 1e6,
+            "file_mb": file_mb, "parts_s": dict(res.timings)}
+
+
+def format_run(res: dict) -> str:
+    return (f"{res['mission']}: {res['shots']} shots x {res['beams']} beam(s), "
+            f"{res['chunks']} chunks, on {res['workers']} worker(s): {res['seconds']:.1f} s "
+            f"({res['shots_per_s']:.3g} shots/s), peak memory {res['peak_memory_mb']:.0f} MB "
+            f"(largest process {res['largest_process_mb']:.0f} MB), file "
+            f"{res['file_mb']:.0f} MB\n  " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in
+                                                     res["parts_s"].items()))
 
 
 def bench_campaign(mission=None, overrides=(), *, workers: int = 2, progress=None) -> dict:
-    """Wall seconds of a whole satellite campaign (default ``missions/icesat2_campaign.toml``,
-    91 days) run on ``workers`` local Dask workers (1: serially), from the call to the merged
-    file; the terrain cache is filled and the passes found by an untimed preparation first.
-    Returns days, passes, shots (records; each has one return per beam), beams, seconds and
-    shots_per_s."""
+    """:func:`bench_run` of a whole satellite campaign (default
+    ``missions/icesat2_campaign.toml``, 91 days), with its days and passes (the passes found
+    by the untimed preparation). Returns days, passes, shots (records; each has one return
+    per beam), beams, seconds, shots_per_s and peak_memory_mb."""
     from ..geometry import earth_orientation as eo
     from ..mission.preflight import prepare
-    from ..mission.runner import run_mission
     from ..mission_files import default_mission_path
 
     path = Path(mission) if mission is not None else default_mission_path(CAMPAIGN_NAME)
@@ -139,20 +221,17 @@ def bench_campaign(mission=None, overrides=(), *, workers: int = 2, progress=Non
     if sv.start_utc is None:
         raise ValueError(f"{path}: not a campaign (no survey.start_utc / stop_utc)")
     if progress is not None:
-        progress(f"campaign {path.name}: {len(plan.pass_starts_s)} passes, {plan.n_shots} shots "
-                 f"x {plan.beams.n_beams} beams, {workers} worker(s) ...")
-    with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        run_mission(path, overrides=list(overrides), out=Path(tmp) / "campaign.nc",
-                    workers=workers if workers > 1 else None, date_created=_DATE)
-        seconds = time.perf_counter() - t0
+        progress(f"campaign {path.name}: {len(plan.pass_starts_s)} passes")
+    res = bench_run(path, overrides, workers=workers, progress=progress)
     return {"days": (eo.mjd_utc(sv.stop_utc) - eo.mjd_utc(sv.start_utc)),
-            "passes": int(len(plan.pass_starts_s)), "shots": int(plan.n_shots),
-            "beams": int(plan.beams.n_beams), "seconds": seconds,
-            "shots_per_s": plan.n_shots / seconds, "workers": int(workers)}
+            "passes": int(len(plan.pass_starts_s)), "shots": res["shots"],
+            "beams": res["beams"], "seconds": res["seconds"],
+            "shots_per_s": res["shots_per_s"], "workers": int(workers),
+            "peak_memory_mb": res["peak_memory_mb"]}
 
 
 def format_campaign(res: dict) -> str:
     return (f"campaign: {res['days']:.0f} days, {res['passes']} passes, {res['shots']} shots x "
             f"{res['beams']} beams in {res['seconds']:.1f} s on {res['workers']} worker(s): "
-            f"{res['shots_per_s']:.3g} shots/s (goal: the 91-day campaign in <= 600 s on 2 cores)")
+            f"{res['shots_per_s']:.3g} shots/s, peak memory {res['peak_memory_mb']:.0f} MB (goal: "
+            "the 91-day campaign in <= 600 s on 2 cores)")

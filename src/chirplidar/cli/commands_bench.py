@@ -134,6 +134,20 @@ def cmd_bench(args) -> int:
         else:
             print(format_campaign(res))
         return 0
+    if args.what == "run":
+        from ..benchmarks.scale import bench_run, format_run
+
+        say = stderr_lines(args)
+        try:
+            res = bench_run(args.mission, args.set or [], workers=args.workers, progress=say)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        if args.json:
+            print(dump_json({k: (v if isinstance(v, (str, dict)) else json_number(v))
+                             for k, v in res.items()}))
+        else:
+            print(format_run(res))
+        return 0
     if args.what == "coverage":
         from ..benchmarks.coverage import bench_coverage, format_coverage_bench
 
@@ -176,10 +190,11 @@ def cmd_bench(args) -> int:
 def add_bench_parser(sub) -> None:
     """``chirplidar bench``."""
     p = sub.add_parser("bench", help="timing benchmarks (--what): shot, tiers, effects, raycast, "
-                       "scale, campaign, coverage, survey, startup, and the accuracy-against-time "
+                       "scale, campaign, run, coverage, survey, startup, and the accuracy-against-"
+                       "time "
                        "study")
     p.add_argument("--what", choices=("shot", "effects", "raycast", "scale", "accuracy", "tiers",
-                                      "coverage", "campaign", "survey", "startup"),
+                                      "coverage", "campaign", "run", "survey", "startup"),
                    default="shot",
                    help="shot: an rf shot against one FFT; effects: a shot with each effect on "
                         "and off; raycast: our ray casting against raw embree; tiers: seconds per "
@@ -188,13 +203,15 @@ def add_bench_parser(sub) -> None:
                         "coverage: chirplidar coverage of generated 10 M and 20 M shot files "
                         "(--shots sets the smaller); campaign: the 91-day satellite campaign "
                         "(missions/icesat2_campaign.toml unless --mission) on --workers; "
+                        "run: one whole run (missions/greenland_uav_1h.toml, the one-hour "
+                        "flight, unless --mission) on --workers, its time and peak memory; "
                         "survey: a link-tier run of the demo (missions/greenland_uav.toml "
                         "unless --mission) on one core against the raw embree call on its own "
                         "rays (floor_ratio; median of min(--repeats, 5) runs); "
                         "startup: chirplidar --help and import chirplidar.units in fresh "
                         "processes")
     p.add_argument("--workers", type=int, default=2,
-                   help="campaign: Dask workers (1: serially; default 2)")
+                   help="campaign, run: Dask workers (1: serially; default 2)")
     p.add_argument("--triangles", type=int, default=1_000_000,
                    help="raycast: terrain triangles (default 1,000,000)")
     p.add_argument("--rays", type=int, default=200_000, help="raycast: rays per timing")
@@ -221,7 +238,8 @@ def add_bench_parser(sub) -> None:
                         '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
                         '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
                         '"peak_memory_mb", ...} (coverage), {"days", "passes", "shots", "seconds", '
-                        '"shots_per_s"} (campaign), {"shots", "rays_per_shot", "seconds", "shots_per_s", '
+                        '"shots_per_s"} (campaign), {"shots", "seconds", "shots_per_s", '
+                        '"peak_memory_mb", ...} (run), {"shots", "rays_per_shot", "seconds", "shots_per_s", '
                         '"embree_rays_per_s", "floor_ratio", ...} (survey), {"help_s", "import_units_s", "python_s", '
                         '"repeats"} (startup) or the study rows (accuracy)')
     p.set_defaults(func=cmd_bench)

@@ -220,7 +220,7 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
     bar = _progress_bar(plan, config.survey.tier, done) if progress else None
     t1 = time.perf_counter()
     one_chunk = plan.chunk_shots * plan.beams.n_beams * BYTES_PER_BEAM_SHOT
-    summary_pass = SummaryPass(plan.beams.n_beams, budget_bytes=one_chunk)
+    summary_pass = SummaryPass(plan.beams.n_beams, budget_bytes=one_chunk, spill_dir=chunk_dir)
     merge = _start_merge(writer, out, plan, overwrite=overwrite, summary_pass=summary_pass,
                          bar=bar, scheduler=scheduler)
     appends_s = _compute(executor, job, todo, plan, merge, writer, bar, scheduler)
@@ -235,7 +235,8 @@ def _execute(job: ChunkJob, config, plan, out: Path, chunk_dir: Path, *, overwri
         raise_run_fault(exc, writer, plan.n_chunks, scheduler)
         raise
     # Every variable read back before the chunks go: they are the only other copy.
-    verify_results_file(path, plan.n_shots, plan.beams.n_beams, block_obs=4 * plan.chunk_shots)
+    verify_results_file(path, plan.n_shots, plan.beams.n_beams, block_obs=4 * plan.chunk_shots,
+                        stored_chunks=merge.stored_chunks)
     files = [writer.chunk_path(i) for i in range(plan.n_chunks)]
     summary = summary_of_chunks(files, path, config.survey.tier, config.seed,
                                 plan.beams.n_beams, 0.0, budget_bytes=one_chunk,

@@ -154,7 +154,7 @@ def locate_shot(prep: Prepared, *, at_s=None, beam: int = 0, root=None):
                           f"(beams.pattern = '{prep.config.beams.pattern}'): use 0..{n_beams - 1}")
     beam = int(beam)
     root = np.random.SeedSequence(prep.config.seed) if root is None else root
-    t = plan.t_s
+    t = np.asarray(plan.t_s)
     if t.size == 0:
         raise ConfigError(f"{src}: the survey span has no shots (survey.start_s .. stop_s at "
                           f"survey.prf_hz)")

@@ -110,14 +110,43 @@ SUMMARY_VARIABLES = ("detected", "snr_db", "range_error")
 class SummaryPass:
     """First pass of :func:`summary_of_chunks`, fed chunk by chunk in chunk order with the
     stored ``detected``, ``snr_db`` and ``range_error`` values: counts, sums, and the detected
-    shots' SNR and range errors while they fit in ``budget_bytes``."""
+    shots' SNR and range errors while they fit in ``budget_bytes``.
 
-    def __init__(self, n_beams: int, budget_bytes: int):
+    With a ``spill_dir``, the detected shots' SNR and range errors that do not fit are
+    appended to two raw float64 files there instead (:meth:`spilled_blocks` reads them back
+    in blocks of the budget), so that the later passes read 16 bytes per detected shot
+    instead of decompressing the chunk files again."""
+
+    def __init__(self, n_beams: int, budget_bytes: int, spill_dir=None):
         self.n_beams, self.budget_bytes = n_beams, budget_bytes
         self.n_obs = 0
         self.counts = np.zeros(N_DETECTED_CODES, dtype=np.int64)
         self.s1 = self.s2 = 0.0
         self.kept: list | None = []
+        self.spill_dir = None if spill_dir is None else Path(spill_dir)
+        self.spilled = False
+
+    def _spill_paths(self) -> tuple[Path, Path]:
+        if self.spill_dir is None:
+            raise ValueError("this summary pass has no spill_dir")
+        return self.spill_dir / "summary_snr.f8", self.spill_dir / "summary_err.f8"
+
+    def _spill(self, pairs, mode: str) -> None:
+        for path, k in zip(self._spill_paths(), (0, 1), strict=True):
+            with open(path, mode) as fh:
+                for pair in pairs:
+                    pair[k].tofile(fh)
+
+    def spilled_blocks(self):
+        """(SNR, range error) of the detected shots, spilled, in blocks of the budget."""
+        paths = self._spill_paths()
+        n = max(1, self.budget_bytes // 16)
+        with open(paths[0], "rb") as fs, open(paths[1], "rb") as fe:
+            while True:
+                snr, err = np.fromfile(fs, np.float64, n), np.fromfile(fe, np.float64, n)
+                if not snr.size:
+                    return
+                yield snr, err
 
     @staticmethod
     def detected_columns(det, snr, err):
@@ -134,9 +163,14 @@ class SummaryPass:
                                    minlength=N_DETECTED_CODES)[:N_DETECTED_CODES]
         self.s1 += float(np.sum(err))
         self.s2 += float(np.sum(err * err))
-        if self.kept is not None:
+        if self.spilled:
+            self._spill([(snr, err)], "ab")
+        elif self.kept is not None:
             self.kept.append((snr, err))
             if 16 * int(self.counts[1]) > self.budget_bytes:
+                if self.spill_dir is not None:
+                    self._spill(self.kept, "wb")
+                    self.spilled = True
                 self.kept = None
 
 
@@ -150,7 +184,8 @@ def summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: in
     statistics are numpy's own (as :func:`summarise`). Beyond it they are streamed: counts
     and quantiles exactly as numpy's (``np.median``; ``np.percentile``, linear method) from
     :func:`order_statistics`, mean, standard deviation and RMS as sums over chunks (last-bit
-    differences from numpy's pairwise sums); five passes over the chunk files.
+    differences from numpy's pairwise sums); five passes over the chunk files, or over the
+    first pass's spill files when it has them.
     ``first_pass``: the first pass, already fed with every chunk (a run feeds it while it
     appends chunks to the results file); without it the files are read.
     """
@@ -167,6 +202,8 @@ def summary_of_chunks(files: list[Path], path, tier: str, seed: int, n_beams: in
             yield cols
 
     def columns():
+        if first_pass.spilled:
+            return ((None, snr, err) for snr, err in first_pass.spilled_blocks())
         return (SummaryPass.detected_columns(*cols) for cols in stored())
 
     if first_pass is None:

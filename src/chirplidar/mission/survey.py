@@ -26,7 +26,7 @@ from ..config.loader import ConfigError
 from ..geometry import frames
 from ..geometry.orbits import KeplerOrbit, TleOrbit
 from ..geometry.paths import AircraftLines, OffTerrainError, UavPath, lawnmower, lawnmower_lines
-from ..geometry.pointing import (Attitude, BeamPattern, conical_scan, nadir_beam,
+from ..geometry.pointing import (Attitude, BeamPattern, ShotClock, conical_scan, nadir_beam,
                                  paired_beams_across_track, shot_geometry, shot_times)
 from ..geometry.footprints import footprint_subrays
 from ..geometry.raycast import cast_rays
@@ -103,7 +103,7 @@ class SurveyPlan:
     beams: BeamPattern
     attitude: Attitude
     jitter_rad_rms: float
-    t_s: np.ndarray            # (n_shots,) shot times [s]
+    t_s: ShotClock | np.ndarray   # (n_shots,) shot times [s] (a campaign's: an array)
     chunk_shots: int
     epsg: int
     target_height_m: float     # chord ends of the scene-frame rays (below / above the terrain)
@@ -288,7 +288,7 @@ def plan_survey(config, scene, source: str) -> SurveyPlan:
                               f"at survey.prf_hz = {sv.prf_hz:g} Hz is {n_shots:.3g} shots, more "
                               f"than a run holds ({MAX_SURVEY_SHOTS:.0e}): split it into "
                               "several runs")
-        t = shot_times(sv.start_s, stop, sv.prf_hz)
+        t = ShotClock.between(sv.start_s, stop, sv.prf_hz)
     z0, z1 = scene.height_range_m
     margin = 1.0 + 1e-3 * (z1 - z0)
     return SurveyPlan(path=path, beams=beams, attitude=attitude,

@@ -7,6 +7,7 @@ HDF5 chunks copied as they are) where the chunk file's layout matches the result
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 from typing import Protocol
@@ -70,6 +71,9 @@ class ChunkMerge:
         self._dst = None               # the temp file (h5py FileID) once chunk 0 is in
         self._targets = {}             # its obs variables: name -> _h5_variable(...)
         self._ref = None               # chunk 0's variables, beams and global attributes
+        # name -> {HDF5 chunk offset: digest of its stored bytes}, for the variables whose
+        # every chunk was copied as stored (None once one was not): the read-back check
+        self._stored: dict[str, dict | None] = {}
 
     def __enter__(self):
         return self
@@ -82,6 +86,12 @@ class ChunkMerge:
     @property
     def n_chunks(self) -> int:
         return len(self.sizes)
+
+    @property
+    def stored_chunks(self) -> dict[str, dict]:
+        """For each variable whose HDF5 chunks were all copied as stored: its chunks' offsets
+        and the digests of their bytes (:func:`.read.verify_results_file` reads them back)."""
+        return {name: d for name, d in self._stored.items() if d is not None}
 
     def append_ready(self) -> int:
         """Append the chunks whose files exist, in order, up to the first missing one;
@@ -217,8 +227,11 @@ class ChunkMerge:
         try:
             for name, axis in axes.items():
                 source = _h5_variable(src, name)
+                record = self._stored.setdefault(name, {})
                 data = _copy_hdf5_variable(source, self._targets[name], axis, start,
-                                           last=i == self.n_chunks - 1)
+                                           last=i == self.n_chunks - 1, record=record)
+                if data is not None:
+                    self._stored[name] = None
                 if name in self.on_append_variables:   # only these: memory stays one variable
                     values[name] = _h5_read(source[0]) if data is None else data
         finally:
@@ -257,13 +270,20 @@ def _h5_read(dsid) -> np.ndarray:
     return out
 
 
-def _copy_hdf5_variable(src: tuple, dst: tuple, axis: int, start: int, last: bool):
+def chunk_digest(data) -> bytes:
+    """Digest of an HDF5 chunk's stored bytes (BLAKE2b, 16 bytes)."""
+    return hashlib.blake2b(data, digest_size=16).digest()
+
+
+def _copy_hdf5_variable(src: tuple, dst: tuple, axis: int, start: int, last: bool,
+                        record: dict | None = None):
     """Copy a chunk file's variable ``src`` into the results file's ``dst`` (both from
     :func:`_h5_variable`) at offset ``start`` along ``axis`` (``obs``); ``last``: ``src``
     ends ``dst``.
 
     When both are chunked alike (chunk shape, filters, dtype) and ``start`` is on ``dst``'s
-    chunk grid, the stored (compressed) HDF5 chunks are copied as they are and None is
+    chunk grid, the stored (compressed) HDF5 chunks are copied as they are (each one's
+    :func:`chunk_digest` put in ``record`` under its offset in ``dst``) and None is
     returned. A chunk reaching past the end of ``src`` (HDF5 stores edge chunks full-size,
     padded) qualifies only when ``src`` is the last: its padding then falls past the end of
     ``dst`` too. Otherwise the values are read, written and returned.
@@ -282,6 +302,8 @@ def _copy_hdf5_variable(src: tuple, dst: tuple, axis: int, start: int, last: boo
             offset = list(info.chunk_offset)
             offset[axis] += start
             did.write_direct_chunk(tuple(offset), chunk, mask)
+            if record is not None:
+                record[tuple(offset)] = chunk_digest(chunk)
         return None
     data = _h5_read(sid)
     index = [slice(None)] * data.ndim

@@ -54,9 +54,10 @@ def write_netcdf(ds: xr.Dataset, path, *, overwrite: bool = False,
 
     An existing ``path`` raises FileExistsError (and is untouched) unless ``overwrite``. On any
     failure no partial file is left at ``path`` and the temp file is removed. Float variables get
-    ``_FillValue = NaN`` and zlib level 4 compression (``compress=False``: none, e.g. for
-    temporary chunk files), stored in HDF5 chunks of ``obs_chunk`` observations (a run uses its
-    ``survey.chunk_shots``) or, without it, netCDF's default chunking. Returns the path.
+    ``_FillValue = NaN`` and zlib compression (``schema.COMPRESSION_LEVEL``; ``compress=False``:
+    none, e.g. for temporary chunk files), stored in HDF5 chunks of ``obs_chunk`` observations
+    (a run uses its ``survey.chunk_shots``) or, without it, netCDF's default chunking. Returns
+    the path.
     """
     return _write_netcdf(ds, path, overwrite=overwrite, compress=compress, obs_chunk=obs_chunk)
 
@@ -228,7 +229,7 @@ class ChunkWriter:
         copied from chunk 0, and each chunk's stored values are then copied raw (no decoding,
         so NaN fill values and flag dtypes pass unchanged) into their ``obs`` slice. The result
         is the file :func:`write_netcdf` (with the same ``obs_chunk``) would write for the
-        concatenated dataset (same values, attributes and encoding: zlib level 4 on float
+        concatenated dataset (same values, attributes and encoding: zlib on float
         arrays whether or not the chunks were compressed, and the same HDF5 chunking).
 
         Chunks must be contiguous from 0 (exactly ``n_chunks`` when given), with the same
