@@ -651,7 +651,7 @@ def test_the_read_back_of_copied_chunks_compares_their_stored_bytes(small, tmp_p
     with pytest.raises(ValueError, match=re.escape(str(damaged)) + r".*variable \w+"):
         verify_results_file(damaged, 3000, 1, stored_chunks=stored)
     name = next(iter(stored))
-    extra = {**stored, name: {**stored[name], (0, 10**6): b"x"}}
+    extra = {**stored, name: {**stored[name], (0, 10**6): (1, 0)}}
     with pytest.raises(ValueError, match=f"variable {name}: stored chunks at"):
         verify_results_file(small.serial.path, 3000, 1, stored_chunks=extra)
 

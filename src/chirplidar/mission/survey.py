@@ -396,6 +396,10 @@ def _angles(path_frame: str, pos, d, epsg, axes=None):
     return np.arccos(np.clip(-u, -1.0, 1.0)), np.mod(np.arctan2(e, nth), 2 * np.pi)
 
 
+#: Footprint sub-rays cast at a time (:func:`chunk_geometry`): ~25 MB of temporaries.
+_SUBRAY_BATCH = 1 << 17
+
+
 def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequence,
                    n_sub: int) -> ChunkGeometry:
     """Cast every shot's beams and footprint sub-rays on the scene terrain."""
@@ -447,11 +451,19 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
         theta = float(beam_radius_m(ch.beam_radius_m, ch.divergence_half_angle_rad, r_med)) / r_med
     else:
         theta = max(ch.divergence_half_angle_rad, 1e-9)
-    so, sd, sw = footprint_subrays(o, d, theta, n_sub, rng=None,
-                                   extent_factor=config.survey.footprint_extent)
-    sub = cast_rays(scene.terrain, so, sd)
+    # Cast in batches of about _SUBRAY_BATCH rays: a chunk's temporaries stay a few tens of MB
+    # whatever its size (each ray's result does not depend on its batch).
+    step = max(1, _SUBRAY_BATCH // max(n_sub, 1))
+    parts = []
+    for a in range(0, max(n * b, 1), step):
+        so, sd, sw = footprint_subrays(o[a:a + step], d[a:a + step], theta, n_sub, rng=None,
+                                       extent_factor=config.survey.footprint_extent)
+        hits = cast_rays(scene.terrain, so, sd)
+        parts.append((sw, np.where(hits.hit, hits.ranges_m, np.inf), hits.incidence_rad,
+                      hits.material_codes))
+    sw, t_sub, sub_inc, sub_mat = (np.concatenate(p) for p in zip(*parts, strict=True))
     k = sw.shape[1]
-    t_sub = np.where(sub.hit, sub.ranges_m, np.inf).reshape(n, b, k)
+    t_sub = t_sub.reshape(n, b, k)
     t_sub = np.where(valid.reshape(n, b, 1), t_sub, np.inf)
     with np.errstate(invalid="ignore"):
         sub_r = rays.range_offset_m[..., None] + t_sub * rays.metres_per_unit[..., None]
@@ -462,8 +474,8 @@ def chunk_geometry(plan: SurveyPlan, scene, config, t_s, seq: np.random.SeedSequ
         beam_power_share=plan.beams.power_share,
         hit_xyz_m=np.where(hit[..., None], centre.points_m.reshape(n, b, 3), np.nan),
         incidence_rad=inc, material=mat, beam_radius_m=w, sub_range_m=sub_r,
-        sub_weight=sw.reshape(n, b, k), sub_incidence_rad=sub.incidence_rad.reshape(n, b, k),
-        sub_material=sub.material_codes.reshape(n, b, k))
+        sub_weight=sw.reshape(n, b, k), sub_incidence_rad=sub_inc.reshape(n, b, k),
+        sub_material=sub_mat.reshape(n, b, k))
 
 
 def check_crosses_scene(plan: SurveyPlan, scene, config, source: str, n_probe: int = 64):
