@@ -215,6 +215,30 @@ def test_scale_bench_pairs_alternate_and_agree(small, monkeypatch):
     assert "pairs of runs" in scale_bench.format_scale(res)
 
 
+def test_run_bench_times_a_run_and_its_peak_memory(small, monkeypatch):
+    """``bench --what run`` on the small mission, serially and on 2 workers: the run's shots
+    and chunks, a peak memory of the processes together at least this process's own
+    resident memory now (the sampler's floor) and, with workers, above the largest single
+    process (three processes are summed), the file's size on disk. No timed assertion."""
+    import psutil
+
+    from chirplidar.benchmarks import scale as scale_bench
+
+    monkeypatch.setenv("CHIRPLIDAR_CACHE", str(small.cache))
+    for workers in (1, 2):
+        res = scale_bench.bench_run(small.mission, workers=workers)
+        assert res["shots"] == small.serial.summary["shots"] and res["chunks"] == 6
+        assert res["seconds"] > 0 and res["shots_per_s"] == pytest.approx(
+            res["shots"] / res["seconds"], rel=1e-12)
+        assert res["estimated_seconds"] > 0
+        assert res["peak_memory_mb"] >= 0.5 * psutil.Process().memory_info().rss / 1e6
+        if workers == 2:
+            assert res["peak_memory_mb"] > res["largest_process_mb"]
+        assert res["file_mb"] == pytest.approx(small.serial.path.stat().st_size / 1e6,
+                                               rel=0.2)
+        assert f"on {workers} worker(s)" in scale_bench.format_run(res)
+
+
 def test_scale_bench_pair_statistics():
     """Reference: hand computation. Ratios 4/2, 5/2.5, 6/4 = 2, 2, 1.5: median 2; numpy's
     linear quartiles of (1.5, 2, 2) are 1.75 and 2; the time medians are 5 and 2.5 s."""

@@ -170,13 +170,18 @@ def bench_run(mission=None, overrides=(), *, workers: int = 2, progress=None) ->
     verified file; the terrain cache is filled and the modules imported by an untimed
     preparation first. Returns shots, beams, chunks, seconds, shots_per_s, the peak resident
     memory of the run's processes together (``peak_memory_mb``, sampled every 0.2 s; the
-    largest single process in ``largest_process_mb``), the file's size and the run's parts."""
-    from ..mission.preflight import prepare
-    from ..mission.runner import run_mission
+    largest single process in ``largest_process_mb``), the file's size, the run's parts and
+    what ``run --dry-run`` estimated for it (``estimated_seconds``: its pilot, on as many
+    cores as workers)."""
+    import warnings
+
+    from ..mission.runner import preflight_run, run_mission
     from ..mission_files import default_mission_path
 
     path = Path(mission) if mission is not None else default_mission_path(RUN_NAME)
-    _, _, plan = prepare(path, overrides=list(overrides))
+    with warnings.catch_warnings():   # the planner's warnings: the run issues them again
+        warnings.simplefilter("ignore")
+        _, _, plan, _, estimate = preflight_run(path, overrides=list(overrides), cores=workers)
     import dask.distributed  # noqa: F401  (untimed, as in bench_scale)
     import h5py  # noqa: F401
     if progress is not None:
@@ -194,7 +199,8 @@ def bench_run(mission=None, overrides=(), *, workers: int = 2, progress=None) ->
             "chunks": int(plan.n_chunks), "workers": int(workers), "seconds": seconds,
             "shots_per_s": plan.n_shots / seconds, "peak_memory_mb": memory.peak_bytes / 1e6,
             "largest_process_mb": max(memory.per_process.values(), default=0) / 1e6,
-            "file_mb": file_mb, "parts_s": dict(res.timings)}
+            "file_mb": file_mb, "estimated_seconds": estimate.seconds,
+            "parts_s": dict(res.timings)}
 
 
 def format_run(res: dict) -> str:
@@ -202,8 +208,8 @@ def format_run(res: dict) -> str:
             f"{res['chunks']} chunks, on {res['workers']} worker(s): {res['seconds']:.1f} s "
             f"({res['shots_per_s']:.3g} shots/s), peak memory {res['peak_memory_mb']:.0f} MB "
             f"(largest process {res['largest_process_mb']:.0f} MB), file "
-            f"{res['file_mb']:.0f} MB\n  " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in
-                                                     res["parts_s"].items()))
+            f"{res['file_mb']:.0f} MB; --dry-run estimated {res['estimated_seconds']:.0f} s\n  "
+            + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in res["parts_s"].items()))
 
 
 def bench_campaign(mission=None, overrides=(), *, workers: int = 2, progress=None) -> dict:

@@ -96,13 +96,13 @@ def footprint_subrays(
         theta, phi = np.zeros(1), np.zeros(1)
     else:
         theta, phi = subray_pattern(n_sub, extent_factor * th_d)
-    phi = np.broadcast_to(phi, (n, n_sub))
     if rng is not None:
         phi = phi + rng.uniform(0.0, 2 * np.pi, n)[:, None]
+    cp, sp = np.broadcast_to(np.cos(phi), (n, n_sub)), np.broadcast_to(np.sin(phi), (n, n_sub))
     e1, e2 = _perpendicular_basis(d)
     st, ct = np.sin(theta)[None, :, None], np.cos(theta)[None, :, None]
     sub = ct * d[:, None, :] + st * (
-        np.cos(phi)[..., None] * e1[:, None, :] + np.sin(phi)[..., None] * e2[:, None, :]
+        cp[..., None] * e1[:, None, :] + sp[..., None] * e2[:, None, :]
     )
     w = np.exp(-2.0 * theta**2 / th_d**2)
     w = np.broadcast_to(w / w.sum(), (n, n_sub)).copy()

@@ -237,6 +237,22 @@ def results_dataset(per_shot: dict, config, scene, mission_label: str, date_crea
     return ds
 
 
+def pilot_chunk(config, scene, geom, seq) -> None:
+    """A chunk's work after its geometry, as :func:`run_chunk` does it -- measurement,
+    per-shot variables, dataset, compressed file (written to a temporary directory and
+    removed) -- for the run's estimate (:func:`.preflight.run_estimate`)."""
+    import tempfile
+
+    from .results import write_netcdf
+
+    meas = measure_chunk(config, scene, geom, seq)
+    per_shot = {k: np.ascontiguousarray(v.T)
+                for k, v in per_shot_variables(config, geom, meas).items()}
+    ds = results_dataset(per_shot, config, scene, "pilot", "2026-01-01T00:00:00Z")
+    with tempfile.TemporaryDirectory(prefix="chirplidar-pilot-") as tmp:
+        write_netcdf(ds, Path(tmp) / "pilot.nc", obs_chunk=max(1, ds.sizes["obs"]))
+
+
 def run_chunk(job: ChunkJob, index: int, progress=None) -> Path:
     """Compute chunk ``index`` of ``job`` and write it atomically as ``chunk_NNNNN.nc`` in
     ``job.chunk_dir``; returns its path. Pure in its arguments (a rerun rewrites the same file),

@@ -61,7 +61,7 @@ LARGE_RUN_HOURS = 2.0
 LARGE_RUN_GB = 20.0
 #: The timed pilot: a first shot cheaper than this is followed by this many shots.
 PILOT_CHEAP_S = 0.5
-PILOT_SHOTS = 2048
+PILOT_SHOTS = 16384
 
 
 def prepare(mission_path, *, overrides=(), tier=None, seed=None, cache_dir=None):
@@ -284,15 +284,19 @@ class RunEstimate:
                 "pilot_shots": self.pilot_shots}
 
 
-def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEstimate:
+def run_estimate(config, scene, plan, *, cores: int = 1, pilot_chunk) -> RunEstimate:
     """The run's size and its time on ``cores`` cores, timed on a pilot of its first shots.
 
-    ``measure_chunk(config, scene, geometry, seq)`` is the run's tier dispatch. The pilot times
-    the first shot. An expensive one (>= :data:`PILOT_CHEAP_S`: rf, baseband) is taken as the
-    cost of every shot. Cheap shots (the link tier) cost less per shot in large batches and a
-    chunk has a fixed cost (its tables): a run of at most ``2 * PILOT_SHOTS`` shots is timed
-    whole, a larger one on ``PILOT_SHOTS / 4`` and ``PILOT_SHOTS`` shots, whose difference
-    gives the cost per shot. The pilot has its own seed: the run's outputs do not depend on it.
+    ``pilot_chunk(config, scene, geometry, seq)`` is a chunk's work after its geometry
+    (measurement, dataset, compressed file: :func:`.pipeline.pilot_chunk`); the pilot times it
+    with the geometry. An expensive first shot (>= :data:`PILOT_CHEAP_S`: rf, baseband) is
+    taken as the cost of every shot. Cheap shots (the link tier) cost less per shot in large
+    batches and a chunk has a fixed cost (tables, files): a run of at most
+    ``2 * PILOT_SHOTS`` shots is timed whole, a larger one on ``PILOT_SHOTS / 4`` (twice: the
+    first also fills caches) and ``PILOT_SHOTS`` shots, whose difference gives the cost per
+    shot (the larger pilot's mean when timing noise makes it no larger). The merge's copying
+    is not timed (a few per cent). The pilot has its own seed: the run's outputs do not depend
+    on it.
     """
     t_first = plan.chunk_times(0)
     seq = np.random.SeedSequence(0)
@@ -301,7 +305,7 @@ def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEs
         start = time.perf_counter()
         geom = chunk_geometry(plan, scene, config, t_first[:n], seq,
                               config.survey.subrays_per_beam)
-        measure_chunk(config, scene, geom, seq)
+        pilot_chunk(config, scene, geom, seq)
         return time.perf_counter() - start
 
     one = timed(1)
@@ -314,8 +318,11 @@ def run_estimate(config, scene, plan, *, cores: int = 1, measure_chunk) -> RunEs
             per_shot = timed(pilot) / pilot
         else:
             small, pilot = PILOT_SHOTS // 4, min(PILOT_SHOTS, t_first.size)
+            timed(small)
             t_small, t_big = timed(small), timed(pilot)
-            per_shot = max(t_big - t_small, 0.0) / (pilot - small)
+            per_shot = (t_big - t_small) / (pilot - small)
+            if not per_shot > 0.5 * t_big / pilot:
+                per_shot = t_big / pilot
             per_chunk = max(t_small - small * per_shot, 0.0)
     beams = plan.beams.n_beams
     return RunEstimate(shots=plan.n_shots, beams=beams, chunks=plan.n_chunks,

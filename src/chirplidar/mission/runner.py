@@ -45,7 +45,7 @@ from .executors import Executor, check_parallel_args, executor_for, keep_freed_m
 from .faults import RunError, raise_run_fault
 from .manifest import (build_manifest, check_chunk_dir, check_writable, chunk_dir_for,
                        open_chunk_dir, output_lock)
-from .pipeline import (ChunkJob, config_toml, forget_prepared, measure_chunk,
+from .pipeline import (ChunkJob, config_toml, forget_prepared, pilot_chunk,
                        remember_prepared, run_chunk)
 from .results import (BYTES_PER_BEAM_SHOT, ChunkMerge, ChunkWriter, read_netcdf,
                       verify_results_file)
@@ -100,8 +100,8 @@ def preflight_run(mission_path, *, overrides=(), tier=None, seed=None, cache_dir
     """What a run checks before any work, and what ``chirplidar run --dry-run`` shows:
     :func:`.preflight.prepare`, the planner's warnings (issued as
     :class:`.preflight.PlannerWarning`) and, if ``estimate``, the run's size
-    (:func:`.preflight.run_estimate`, timed through :func:`.pipeline.measure_chunk`; else
-    None). Returns (config, scene, plan, planner warnings, estimate)."""
+    (:func:`.preflight.run_estimate`, timed through :func:`.pipeline.pilot_chunk`: a chunk's
+    measurement and its compressed file; else None). Returns (config, scene, plan, planner warnings, estimate)."""
     config, scene, plan = preflight.prepare(mission_path, overrides=overrides, tier=tier,
                                             seed=seed, cache_dir=cache_dir)
     sv = config.survey
@@ -111,7 +111,7 @@ def preflight_run(mission_path, *, overrides=(), tier=None, seed=None, cache_dir
     notes = tuple(preflight.planner_warnings(config, scene, plan))
     for text in notes:
         warnings.warn(text, preflight.PlannerWarning, stacklevel=2)
-    size = (preflight.run_estimate(config, scene, plan, cores=cores, measure_chunk=measure_chunk)
+    size = (preflight.run_estimate(config, scene, plan, cores=cores, pilot_chunk=pilot_chunk)
             if estimate else None)
     return config, scene, plan, notes, size
 
