@@ -213,6 +213,8 @@ def test_scale_bench_pairs_alternate_and_agree(small, monkeypatch):
     assert res["speedup"] == pytest.approx(np.median(res["pair_speedups"]), rel=1e-12)
     assert "cluster_start_s" in res["workers_parts_s"]
     assert "pairs of runs" in scale_bench.format_scale(res)
+    assert "goal >= 1.6)" in scale_bench.format_scale(res)   # a short run: issue 5's goal
+    assert "goal >= 1.75)" in scale_bench.format_scale({**res, "serial_s": 60.0})  # issue 19
 
 
 def test_run_bench_times_a_run_and_its_peak_memory(small, monkeypatch):
