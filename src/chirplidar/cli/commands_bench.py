@@ -115,7 +115,7 @@ def cmd_bench(args) -> int:
         say = stderr_lines(args)
         res = bench_scale(args.mission, args.set or [], repeats=args.repeats, progress=say)
         if args.json:
-            print(dump_json({k: res[k] for k in ("serial_s", "workers_2_s", "speedup")}))
+            print(dump_json(res))
         else:
             print(format_scale(res))
         return 0
@@ -236,7 +236,8 @@ def add_bench_parser(sub) -> None:
                         '...} (effects), {"project_rays_per_s", "embree_rays_per_s", "ratio"} '
                         '(raycast), {"rf_shot_s", "baseband_shot_s", "link_shot_s", '
                         '"baseband_speedup", "link_shots_per_s"} (tiers), {"serial_s", '
-                        '"workers_2_s", "speedup"} (scale), {"shots", "seconds", "shots_per_s", '
+                        '"workers_2_s", "speedup", "pair_speedups", "identical", ...} (scale), '
+                        '{"shots", "seconds", "shots_per_s", '
                         '"peak_memory_mb", ...} (coverage), {"days", "passes", "shots", "seconds", '
                         '"shots_per_s"} (campaign), {"shots", "seconds", "shots_per_s", '
                         '"peak_memory_mb", ...} (run), {"shots", "rays_per_shot", "seconds", "shots_per_s", '

@@ -36,8 +36,8 @@ def verify_results_file(path, n_obs: int, n_beams: int, block_obs: int = 1 << 20
     ``n_beams`` x ``n_obs`` values along (trajectory, obs) and reads back: decompressed block
     by block, so every stored chunk is checked, or, for the variables in ``stored_chunks``
     (name -> {HDF5 chunk offset: :func:`.merge.chunk_digest`}, from the merge that copied
-    them as stored), exactly those chunks' stored bytes (no decompression: they are the bytes
-    of chunk files whose own writes were checked)."""
+    them as stored), exactly those chunks with their stored bytes' length and CRC-32 (no
+    decompression: they are the bytes of chunk files whose seals were checked)."""
     import netCDF4
 
     stored_chunks = stored_chunks or {}
@@ -53,7 +53,8 @@ def verify_results_file(path, n_obs: int, n_beams: int, block_obs: int = 1 << 20
 
 
 def _verify_stored(path, stored_chunks) -> None:
-    """Each variable of ``stored_chunks`` holds exactly those HDF5 chunks, byte for byte."""
+    """Each variable of ``stored_chunks`` holds exactly those HDF5 chunks, with the same
+    length and CRC-32 (:func:`.merge.chunk_digest`)."""
     import h5py
 
     from .merge import chunk_digest
