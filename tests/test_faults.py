@@ -552,3 +552,26 @@ def test_unexpected_error_is_one_line_traceback_on_request(small, env, tmp_path,
     err = capsys.readouterr().err
     assert "Traceback" in err and "in broken" in err
     assert err.strip().splitlines()[-1].startswith("chirplidar run: failed: KeyError: 'boom'")
+
+
+def test_a_chunk_that_kills_every_worker_is_one_line_with_resume(tmp_path):
+    """Dask's KilledWorker (the scheduler gave up on a chunk whose workers all died, e.g. out of
+    memory) becomes one line naming the chunk's task, the chunks kept and --resume."""
+    from types import SimpleNamespace
+
+    from distributed.scheduler import KilledWorker
+
+    from chirplidar.mission.faults import RunError, raise_run_fault
+    from chirplidar.mission.results import ChunkWriter
+
+    writer = ChunkWriter(tmp_path / "run.nc.chunks", run_id="r")
+    for i in (0, 1):   # two sealed chunks
+        writer.chunk_path(i).write_bytes(b"x")
+        writer.seal_path(i).write_text("{}")
+    exc = KilledWorker("chirplidar-chunk-abc-00002", SimpleNamespace(address="tcp://w:1"), 3)
+    with pytest.raises(RunError) as err:
+        raise_run_fault(exc, writer, 6, None)
+    text = str(err.value)
+    assert "\n" not in text and "chirplidar-chunk-abc-00002" in text
+    assert "2 of 6 chunks done and kept" in text and text.endswith("run again with --resume")
+    assert err.value.exit_code == 1

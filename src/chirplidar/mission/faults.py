@@ -82,6 +82,11 @@ def raise_run_fault(exc: BaseException, writer, n_chunks: int, scheduler) -> Non
                            "with --resume") from exc
         raise RunError(f"lost the Dask scheduler at {scheduler} before any of the {n_chunks} "
                        "chunks was finished: run again when it is back") from exc
+    if _is_killed_worker(exc):
+        task = str(getattr(exc, "task", "a chunk"))
+        raise RunError(f"Dask gave up on {task}: every worker that ran it died (out of "
+                       f"memory? lower --workers or survey.chunk_shots); {kept} of {n_chunks} "
+                       f"chunks done and kept in {chunk_dir}: run again with --resume") from exc
     if is_os_fault(exc):
         fix = fix_for(exc)
         if kept:
@@ -90,3 +95,9 @@ def raise_run_fault(exc: BaseException, writer, n_chunks: int, scheduler) -> Non
                            exc.errno) from exc
         raise RunError(f"{os_fault_text(exc)}; no chunk was finished, nothing is kept: {fix}, "
                        "then run again", exc.errno) from exc
+
+
+def _is_killed_worker(exc: BaseException) -> bool:
+    """Dask's KilledWorker: the scheduler gave up on a task whose workers all died."""
+    return any(c.__name__ == "KilledWorker" and c.__module__.startswith("distributed")
+               for c in type(exc).__mro__)
