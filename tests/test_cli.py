@@ -332,3 +332,11 @@ def test_run_refuses_what_the_survey_tier_does_not_model(capsys):
     err = capsys.readouterr().err
     assert "survey.tier = 'link': the link tier does not model processing.doppler_recovery" in err
     assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize("what", ["run", "campaign"])
+def test_bench_run_refuses_no_workers(what, capsys):
+    from conftest import one_line_refusal
+
+    one_line_refusal(["bench", "--what", what, "--workers", "0"], capsys,
+                     "--workers must be >= 1", "got 0")

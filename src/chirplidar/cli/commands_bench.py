@@ -119,6 +119,8 @@ def cmd_bench(args) -> int:
         else:
             print(format_scale(res))
         return 0
+    if args.what in ("run", "campaign") and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1 (1: serially), got {args.workers}")
     if args.what == "campaign":
         from ..benchmarks.scale import bench_campaign, format_campaign
 
