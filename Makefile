@@ -42,6 +42,9 @@ bench: install
 	$(BIN)/chirplidar bench --what tiers
 	$(BIN)/chirplidar bench --what survey
 	$(BIN)/chirplidar bench --what scale --repeats 21
+	$(BIN)/chirplidar bench --what scale --repeats 5 --mission missions/greenland_uav_1h.toml \
+	    --set survey.stop_s=800
+	$(BIN)/chirplidar bench --what run
 	$(BIN)/chirplidar bench --what campaign
 	$(BIN)/chirplidar bench --what accuracy --out outputs
 	$(BIN)/chirplidar bench --what coverage
