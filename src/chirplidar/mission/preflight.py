@@ -289,8 +289,9 @@ def run_estimate(config, scene, plan, *, cores: int = 1, pilot_chunk) -> RunEsti
 
     ``pilot_chunk(config, scene, geometry, seq)`` is a chunk's work after its geometry
     (measurement, dataset, compressed file: :func:`.pipeline.pilot_chunk`); the pilot times it
-    with the geometry. An expensive first shot (>= :data:`PILOT_CHEAP_S`: rf, baseband) is
-    taken as the cost of every shot. Cheap shots (the link tier) cost less per shot in large
+    with the geometry. The first shot is timed twice (the first call also imports and fills
+    caches); an expensive one (>= :data:`PILOT_CHEAP_S`: rf, baseband) is taken as the cost
+    of every shot. Cheap shots (the link tier) cost less per shot in large
     batches and a chunk has a fixed cost (tables, files): a run of at most
     ``2 * PILOT_SHOTS`` shots is timed whole, a larger one on ``PILOT_SHOTS / 4`` (twice: the
     first also fills caches) and ``PILOT_SHOTS`` shots, whose difference gives the cost per
@@ -308,16 +309,16 @@ def run_estimate(config, scene, plan, *, cores: int = 1, pilot_chunk) -> RunEsti
         pilot_chunk(config, scene, geom, seq)
         return time.perf_counter() - start
 
+    timed(1)   # the first call also pays for imports and caches (netCDF's, the tables')
     one = timed(1)
-    if one < PILOT_CHEAP_S:
-        one = timed(1)   # the first call also pays for imports and caches
     per_shot, per_chunk, pilot = one, 0.0, 1
     if one < PILOT_CHEAP_S and plan.n_shots > 1:
         if plan.n_shots <= 2 * PILOT_SHOTS:
             pilot = min(plan.n_shots, t_first.size)
             per_shot = timed(pilot) / pilot
         else:
-            small, pilot = PILOT_SHOTS // 4, min(PILOT_SHOTS, t_first.size)
+            pilot = min(PILOT_SHOTS, t_first.size)   # (a first chunk may be shorter)
+            small = max(1, pilot // 4)
             timed(small)
             t_small, t_big = timed(small), timed(pilot)
             per_shot = (t_big - t_small) / (pilot - small)
