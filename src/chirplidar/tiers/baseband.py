@@ -40,7 +40,7 @@ import scipy.linalg.blas
 
 from .._threads import single_threaded_blas
 from ..processing.spectrum import analyze_spectrum
-from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
+from ..receiver import single_pole
 from ..receiver.detectors import (
     DetectorNoise,
     balanced_noise,
@@ -51,7 +51,7 @@ from ..streams import child_stream
 from ..transmitter import wiener_phase
 from ..units import ELEMENTARY_CHARGE_C
 from .baseband_product import BeatProduct, band_top_hz, field_peak, shared_beat
-from .budget import coupler_field_transmission, make_budget, responsivities
+from .budget import arm_cross, make_budget, receiver_coupler, responsivities
 from .common import (
     detection_flags,
     echo_mean_offset_s,
@@ -153,10 +153,8 @@ class _BasebandRun:
         self.mode = mode = config.system.coherent_mode
         resp = responsivities(config, bud.nu_hz)
         self.r = r = (resp["balanced_1"], resp["balanced_2"])
-        self.S = S = (
-            COUPLER_3DB if mode == "homodyne" else HYBRID_90
-        ) * coupler_field_transmission(config)
-        self.cross = [r[j] * S[j, 0] * np.conj(S[j, 1]) for j in (0, 1)]  # arm j: 2 Re(cross_j X)
+        self.S = S = receiver_coupler(config, mode)
+        self.cross = list(arm_cross(S, r))  # arm j: 2 Re(cross_j X)
         self.s_lo = bud.lo_power_scale(b.lo_power_w)
         self.s_sig = config.laser.power_w * bud.tx_gain * bud.h
         self.flags = detection_flags(config, bud, returns, nyquist_hz=self.top)

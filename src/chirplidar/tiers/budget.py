@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..receiver import COUPLER_3DB, HYBRID_90
 from ..transmitter.mzm import mzm_mean_power_transmission
 from ..units import PLANCK_J_S, SPEED_OF_LIGHT_M_S, db_to_ratio, responsivity_a_per_w
 from ..waveform import ChirpTrain, Waveform
@@ -141,6 +142,20 @@ def responsivities(config: Instrument, nu_hz: float) -> dict[str, float]:
 def coupler_field_transmission(config: Instrument) -> float:
     """Field factor of the receiver coupler's excess loss (applies to LO and signal alike)."""
     return float(np.sqrt(db_to_ratio(-config.balanced.coupler_excess_loss_db)))
+
+
+def receiver_coupler(config: Instrument, mode: str) -> np.ndarray:
+    """Field matrix S of the coherent receiver's coupler with its excess loss (S[j, 0]: the LO,
+    S[j, 1]: the signal into arm j): the 3 dB coupler of the balanced homodyne pair, else the
+    90-degree hybrid of phase diversity (thesis Appendix C)."""
+    return (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
+
+
+def arm_cross(S: np.ndarray, r) -> tuple[complex, complex]:
+    """The arms' cross coefficients c_j = r_j S_j0 S_j1* (arm j's current holds
+    2 Re(c_j E_LO E_s*), :func:`~chirplidar.receiver.fields.port_power`), ``r`` the arms'
+    responsivities."""
+    return (complex(r[0] * S[0, 0] * np.conj(S[0, 1])), complex(r[1] * S[1, 0] * np.conj(S[1, 1])))
 
 
 def if_half_width_hz(config: Instrument, bud: Budget) -> float:

@@ -41,7 +41,14 @@ from ..receiver.fpa import estimated_mrc_factor
 from ..transmitter.mzm import mzm_drive_angles, mzm_fundamental_field, mzm_power_fundamental
 from ..units import SPEED_OF_LIGHT_M_S
 from .baseband_product import field_peak
-from .budget import coupler_field_transmission, if_half_width_hz, make_budget, responsivities
+from .budget import (
+    arm_cross,
+    coupler_field_transmission,
+    if_half_width_hz,
+    make_budget,
+    receiver_coupler,
+    responsivities,
+)
 from .common import (
     assemble_outputs,
     detection_flags,
@@ -418,9 +425,9 @@ def _saturates(config, bud, s_sig: float, resp: dict, power_factor) -> bool:
     difference current, 2 |c_1 - c_2| sqrt(P_lo P_sig) max|a_lo| max|a_sig| over the mean
     responsivity (c_j the arms' coupler products r_j S_j0 S_j1*), for the strongest shot."""
     b = config.balanced
-    S = COUPLER_3DB * coupler_field_transmission(config)
     r1, r2 = resp["balanced_1"], resp["balanced_2"]
-    cross = r1 * S[0, 0] * np.conj(S[0, 1]) - r2 * S[1, 0] * np.conj(S[1, 1])
+    c1, c2 = arm_cross(receiver_coupler(config, "homodyne"), (r1, r2))
+    cross = c1 - c2
     s_lo = bud.lo_power_scale(b.lo_power_w)
     pf = float(np.max(power_factor)) if np.size(power_factor) else 0.0
     amp = np.sqrt(s_lo * s_sig * max(pf, 0.0))

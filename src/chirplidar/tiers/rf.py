@@ -17,16 +17,17 @@ from functools import lru_cache
 import numpy as np
 import scipy.fft
 
-from ..receiver import COUPLER_3DB, HYBRID_90, single_pole
+from ..receiver import single_pole
 from ..receiver.detectors import apd_noise, balanced_noise, current_noise, pin_noise
 from ..receiver.fields import Field, combine, port_coefficients, port_power
 from ..streams import child_stream
 from ..transmitter import mzm_field, wiener_phase
 from .budget import (
     Budget,
-    coupler_field_transmission,
+    arm_cross,
     if_half_width_hz,
     make_budget,
+    receiver_coupler,
     responsivities,
 )
 from .common import (
@@ -218,12 +219,11 @@ def simulate_rf(
 
 
 def _arm_cross(config: Instrument, bud: Budget) -> tuple[complex, complex]:
-    """The hybrid arms' cross coefficients c_j = r_j S_j0 S_j1* (arm j's current holds
-    2 Re(c_j E_LO E_s*), :func:`~chirplidar.receiver.fields.port_power`)."""
-    S = HYBRID_90 * coupler_field_transmission(config)
+    """The 90-degree hybrid arms' cross coefficients (:func:`.budget.arm_cross`)."""
     resp = responsivities(config, bud.nu_hz)
-    r = (resp["balanced_1"], resp["balanced_2"])
-    return (complex(r[0] * S[0, 0] * np.conj(S[0, 1])), complex(r[1] * S[1, 0] * np.conj(S[1, 1])))
+    return arm_cross(
+        receiver_coupler(config, "phase_diversity"), (resp["balanced_1"], resp["balanced_2"])
+    )
 
 
 def _laser_phase_noise(config: Instrument, bud: Budget, grid: _Grid, rng: np.random.Generator):
@@ -323,7 +323,7 @@ def _coherent(
     b = config.balanced
     resp = responsivities(config, bud.nu_hz)
     s_lo = bud.lo_power_scale(b.lo_power_w)
-    S = (COUPLER_3DB if mode == "homodyne" else HYBRID_90) * coupler_field_transmission(config)
+    S = receiver_coupler(config, mode)
     dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
     r1, r2 = resp["balanced_1"], resp["balanced_2"]
     if simple:
@@ -428,7 +428,7 @@ def _heterodyne(config, bud: Budget, rng, sig: Field, t, shape, resp, gate, th_s
         else np.zeros((shape[0], shape[1], 1))
     )
     lo = Field(np.full(t.shape, np.sqrt(b.lo_power_w)), 2 * np.pi * f_lo * t + th_lo)
-    S = COUPLER_3DB * coupler_field_transmission(config)
+    S = receiver_coupler(config, "homodyne")
     p1 = port_power(S[0, 0], S[0, 1], lo, sig)
     r = resp["heterodyne"]
     dark = b.solar_current_a + b.background_current_a + b.leakage_current_a
