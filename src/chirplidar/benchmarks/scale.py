@@ -21,8 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import integer
-
 MISSION_NAME = "greenland_uav.toml"
 _DATE = "2026-01-01T00:00:00Z"   # fixed date_created: the two files are comparable
 
@@ -59,7 +57,8 @@ def bench_scale(mission=None, overrides=(), *, workers: int = 2, repeats: int = 
     from ..mission.runner import run_mission
     from ..mission_files import default_mission_path
 
-    repeats = integer("repeats", repeats, 1)
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
     mission = Path(mission) if mission is not None else default_mission_path(MISSION_NAME)
     # Untimed: the terrain cache and the imports, dask.array (xarray imports it),
     # dask.distributed (a serial run's first chunk file write asks it for a client) and h5py

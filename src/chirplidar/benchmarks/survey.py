@@ -52,8 +52,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .._checks import integer
-
 MISSION_NAME = "greenland_uav.toml"
 _DATE = "2026-01-01T00:00:00Z"   # fixed date_created: runs are alike
 #: Rays kept for the floor's timing (48 bytes each: 96 MB); embree's rate per ray does not
@@ -211,7 +209,8 @@ def bench_survey(mission=None, overrides=(), *, repeats: int = 3, breakdown: boo
     from ..mission.runner import run_mission
     from ..mission_files import default_mission_path
 
-    repeats = integer("repeats", repeats, 1)
+    if isinstance(repeats, bool) or not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
     if not embree_available():
         raise RuntimeError("bench --what survey needs embreex (pip install embreex)")
     mission = Path(mission) if mission is not None else default_mission_path(MISSION_NAME)
